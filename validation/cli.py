@@ -15,6 +15,11 @@ app = typer.Typer(
 )
 
 
+@app.callback()
+def _root() -> None:
+    """MDGS: Kane-constrained GNN rigid-body simulator and the checks of its theory."""
+
+
 @app.command()
 def validate(
     quick: bool = typer.Option(False, "--quick", help="Run the fast subset of checks."),
