@@ -1,12 +1,46 @@
-"""The ``mdgs`` command line: ``mdgs validate`` here, simulator sub-commands from :mod:`mdgs.cli`."""
+"""The ``mdgs`` command line: ``mdgs validate`` here, simulator sub-commands from :mod:`mdgs.cli`.
+
+``mdgs validate`` runs every check of :mod:`kane` on every case it applies to, prints one
+table row per check and the summary line ``14 checks: 12 hold, 2 refuted, 0 errors``.
+Exit codes: 0 every check holds, 1 some claim is refuted, 2 usage error or a check that
+could not decide (``error``). User errors end in one sentence on stderr, never a traceback.
+"""
 
 from __future__ import annotations
 
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import click
 import typer
+from rich.console import Console
+from rich.table import Table
+from rich.text import Text
 
 import mdgs.cli
+from validation import report as _report
 
-app = typer.Typer(
+EXIT_HOLDS, EXIT_REFUTED, EXIT_ERROR = 0, 1, 2
+
+# Parse errors: typer >= 0.20 vendors click (typer._click); older typer raises click's own.
+_CLICK_ERRORS = (click.ClickException, typer.TyperException) if hasattr(typer, "TyperException") else (click.ClickException,)
+
+
+class UsageError(Exception):
+    """A user-caused problem (bad flag value, bad file); its message is one sentence."""
+
+
+class _App(typer.Typer):
+    """Typer app whose parse errors end in one sentence on stderr and exit code 2."""
+
+    def __call__(self, args: Sequence[str] | None = None, prog_name: str | None = None) -> None:
+        sys.exit(main(args, prog_name=prog_name or "mdgs", app_=self))
+
+
+app = _App(
     name="mdgs",
     help="MDGS: Kane-constrained GNN rigid-body simulator and the checks of its theory.",
     no_args_is_help=True,
@@ -20,12 +54,261 @@ def _root() -> None:
     """MDGS: Kane-constrained GNN rigid-body simulator and the checks of its theory."""
 
 
+def main(
+    args: Sequence[str] | None = None,
+    prog_name: str = "mdgs",
+    app_: typer.Typer | None = None,
+    subcommand: str | None = None,
+) -> int:
+    """Run the CLI on ``args`` (default ``sys.argv[1:]``) and return its exit code.
+
+    Click's usage errors (unknown flag, bad value) are printed as one sentence on stderr with
+    exit code 2, instead of click's usage box. ``subcommand`` runs that sub-command alone
+    (``python -m validation`` is ``mdgs validate``).
+    """
+    command = typer.main.get_command(app_ or app)
+    if subcommand is not None:
+        command = command.commands[subcommand]
+    try:
+        rv = command.main(args=list(args) if args is not None else None, prog_name=prog_name, standalone_mode=False)
+    except _CLICK_ERRORS as e:
+        ctx = getattr(e, "ctx", None)
+        cmd = ctx.command_path if ctx is not None else prog_name
+        if type(e).__name__ == "NoArgsIsHelpError" and ctx is not None:  # `mdgs` alone: the help
+            print(ctx.get_help(), file=sys.stderr)
+            return EXIT_ERROR
+        message = e.format_message().rstrip(".") if hasattr(e, "format_message") else str(e)
+        _err(f"{cmd}: {message}; see `{cmd} --help`.")
+        return EXIT_ERROR
+    except (click.Abort, typer.Abort):
+        _err(f"{prog_name}: aborted.")
+        return 130
+    return rv if isinstance(rv, int) else 0
+
+
+def _err(sentence: str) -> None:
+    """One sentence on stderr."""
+    print(sentence, file=sys.stderr)
+
+
+# --------------------------------------------------------------------------- formatting
+
+
+def _fmt_num(x: float | None) -> str:
+    if x is None:
+        return "-"
+    return f"{x:.3g}"
+
+
+def _fmt_value(v: Any, depth: int = 0) -> str:
+    """Compact one-line rendering of a counterexample value (numbers to 4 significant digits)."""
+    if isinstance(v, bool) or v is None:
+        return str(v)
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k}={_fmt_value(x, depth + 1)}" for k, x in v.items()) + "}"
+    if isinstance(v, (list, tuple)):
+        items = [_fmt_value(x, depth + 1) for x in v[:6]]
+        if len(v) > 6:
+            items.append(f"... ({len(v)} items)")
+        return "[" + ", ".join(items) + "]"
+    return str(v)
+
+
+def counterexample_line(cex: dict | None, width: int = 200) -> str:
+    """A counterexample on one line, cut to ``width`` characters."""
+    if not cex:
+        return ""
+    line = ", ".join(f"{k}={_fmt_value(v)}" for k, v in cex.items())
+    return line if len(line) <= width else line[: width - 3] + "..."
+
+
+_VERDICT_STYLE = {"holds": "green", "refuted": "bold red", "error": "yellow"}
+
+
+def render_table(rows: list[dict], console: Console) -> None:
+    """The report table, then one line per refuted check (counterexample, corrected statement)
+    and one per error (why nothing was decided)."""
+    table = Table(show_lines=False, header_style="bold")
+    table.add_column("claim", no_wrap=True)
+    table.add_column("in a few words", min_width=14)
+    table.add_column("case", no_wrap=True)
+    table.add_column("route", no_wrap=True)
+    table.add_column("residual / margin", justify="right", no_wrap=True)
+    table.add_column("tolerance", justify="right", no_wrap=True)
+    table.add_column("verdict", no_wrap=True)
+    for r in rows:
+        table.add_row(
+            r["id"],
+            r["claim"],
+            r["case"],
+            r["route"],
+            _fmt_num(r["residual"]),
+            _fmt_num(r["tolerance"]),
+            Text(r["verdict"], style=_VERDICT_STYLE.get(r["verdict"], "")),
+        )
+    console.print(table)
+    for r in rows:
+        where = f"{r['id']} on {r['case']} ({r['route']})"
+        if r["verdict"] == "refuted":
+            line = Text(f"{where} refuted: ", style="red")
+            cex = counterexample_line(r["counterexample"])
+            line.append(f"counterexample {cex}" if cex else (r["detail"] or "no counterexample recorded"))
+            console.print(line, soft_wrap=True)
+            c = r["corrected"]
+            if c:
+                verdict = c["verdict"] or "not run"
+                stmt = c["statement"] or c["id"]
+                console.print(
+                    Text("  corrected ", style="dim")
+                    + Text(f"{c['id']}: {stmt} ")
+                    + Text(f"[{verdict}]", style=_VERDICT_STYLE.get(verdict, "")),
+                    soft_wrap=True,
+                )
+        elif r["verdict"] == "error":
+            console.print(Text(f"{where} could not be decided: ", style="yellow") + Text(r["detail"] or "no reason given"), soft_wrap=True)
+
+
+# --------------------------------------------------------------------------- running
+
+
+def _claims() -> dict:
+    """``kane.claims.CLAIMS`` (empty when that module cannot be imported)."""
+    try:
+        from kane import claims
+    except ImportError:
+        return {}
+    return dict(getattr(claims, "CLAIMS", {}))
+
+
+def _run_kane(check: list[str] | None, case: list[str] | None, quick: bool, seed: int, progress_console: Console) -> list:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    try:
+        from kane import claims
+    except ImportError as e:
+        raise UsageError(f"kane.claims cannot be imported ({e}); reinstall with `pip install -e .`.") from e
+    with Progress(
+        TextColumn("[bold]checking"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TextColumn("{task.description}"),
+        console=progress_console,
+        transient=True,
+    ) as progress:
+        task = progress.add_task("", total=None)
+
+        def on_progress(done: int, total: int, label: str) -> None:
+            progress.update(task, completed=done, total=total, description=str(label))
+
+        try:
+            return claims.run_checks(claim_ids=check or None, cases=case or None, quick=quick, seed=seed, on_progress=on_progress)
+        except ValueError as e:  # unknown claim id or case: a usage error
+            raise UsageError(str(e)) from e
+
+
+def _run_data(path: str, check: list[str] | None, case: list[str] | None) -> list[dict]:
+    if not Path(path).is_file():
+        raise UsageError(f"--data {path}: no such file; pass a dataset file written by `mdgs generate`.")
+    try:
+        from validation import data_checks
+    except ImportError as e:
+        raise UsageError(f"--data needs validation.data_checks, which cannot be imported ({e}).") from e
+    try:
+        rows = list(data_checks.check_dataset(path))
+    except (ValueError, OSError) as e:
+        raise UsageError(f"--data {path}: {e}") from e
+    return [r for r in rows if (not check or r.get("claim_id") in check) and (not case or r.get("case") in case)]
+
+
+def _load_counterexample(path: str, check: list[str] | None) -> dict:
+    """The counterexample in ``path``: a counterexample object, one report entry, or a whole
+    report (the first entry with a counterexample, among ``--check`` ids when given)."""
+    p = Path(path)
+    if not p.is_file():
+        raise UsageError(f"--replay {path}: no such file; pass a counterexample or a report written by `mdgs validate --json`.")
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise UsageError(f"--replay {path}: not valid JSON ({e}).") from e
+    if isinstance(data, dict) and isinstance(data.get("checks"), list):
+        candidates = [c for c in data["checks"] if isinstance(c, dict) and c.get("counterexample") and (not check or c.get("id") in check)]
+        if not candidates:
+            raise UsageError(f"--replay {path}: the report holds no counterexample" + (f" for {', '.join(check)}." if check else "."))
+        data = candidates[0]
+    if isinstance(data, dict) and "counterexample" in data and isinstance(data["counterexample"], dict):
+        data = data["counterexample"]
+    if not isinstance(data, dict):
+        raise UsageError(f"--replay {path}: expected a JSON object with a counterexample, found {type(data).__name__}.")
+    return data
+
+
+def _replay(path: str, check: list[str] | None) -> int:
+    cex = _load_counterexample(path, check)
+    try:
+        from kane import counterexamples
+    except ImportError as e:
+        raise UsageError(f"--replay needs kane.counterexamples, which cannot be imported ({e}).") from e
+    try:
+        rep = counterexamples.replay(cex)
+    except ValueError as e:
+        raise UsageError(f"--replay {path}: {str(e).rstrip('.')}.") from e
+    print(str(rep))
+    return EXIT_HOLDS
+
+
 @app.command()
 def validate(
-    quick: bool = typer.Option(False, "--quick", help="Run the fast subset of checks."),
+    quick: bool = typer.Option(False, "--quick", help="Run the fast subset of checks (under 15 s)."),
+    check: list[str] | None = typer.Option(None, "--check", metavar="ID", help="Only this claim id (eq34, lemmaA1, eq34.corrected, ...); repeatable."),
+    case: list[str] | None = typer.Option(None, "--case", metavar="NAME", help="Only this case (system or setting); repeatable."),
+    json_path: str | None = typer.Option(None, "--json", metavar="PATH", help="Write the JSON report to PATH ('-' for stdout; the table then goes to stderr)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the adversarial searches (hypothesis, CasADi multistart)."),
+    replay: str | None = typer.Option(None, "--replay", metavar="FILE", help="Re-run one recorded counterexample (a counterexample, a report entry or a whole --json report) and print both sides of its claim."),
+    data: str | None = typer.Option(None, "--data", metavar="FILE", help="Check a dataset file against Kane's equations instead of the claims of kane."),
 ) -> None:
-    """Run every check of `kane` and print a verdict per claim."""
-    raise typer.Exit(2)
+    """Run every check of `kane` on every case it applies to and print a verdict per check.
+
+    Exit code 0 when every check holds, 1 when any claim is refuted, 2 for usage errors and checks that could not decide.
+    """
+    try:
+        code = _validate(quick, check, case, json_path, seed, replay, data)
+    except UsageError as e:
+        _err(str(e))
+        code = EXIT_ERROR
+    raise typer.Exit(code)
+
+
+def _validate(quick, check, case, json_path, seed, replay, data) -> int:
+    if replay is not None:
+        return _replay(replay, check)
+    if json_path is not None and json_path != "-":
+        folder = Path(json_path).parent
+        if not folder.is_dir():
+            raise UsageError(f"--json {json_path}: folder {folder} does not exist; create it or pick another path.")
+    to_stdout = json_path == "-"
+    console = Console(stderr=to_stdout, soft_wrap=False)
+    if not console.is_terminal:  # a pipe or a file: no terminal width to respect
+        console = Console(stderr=to_stdout, soft_wrap=False, width=max(console.width, 140))
+    stderr_console = Console(stderr=True)
+    claims = _claims()
+    if data is not None:
+        results: list = _run_data(data, check, case)
+    else:
+        results = _run_kane(check, case, quick, seed, stderr_console)
+    rep = _report.build_report(results, claims)
+    if not rep["checks"]:
+        raise UsageError("No check matches the selection; see `mdgs validate --help` for --check and --case.")
+    render_table(rep["checks"], console)
+    console.print(_report.summary_line(rep["summary"]), highlight=False)
+    if json_path is not None:
+        try:
+            _report.write_json(rep, json_path)
+        except OSError as e:
+            raise UsageError(f"--json {json_path}: cannot write the report ({e.strerror or e}).") from e
+    return _report.exit_code(rep["summary"])
 
 
 mdgs.cli.register(app)
@@ -33,4 +316,4 @@ mdgs.cli.register(app)
 
 def validate_main() -> None:
     """Entry point of ``python -m validation``."""
-    typer.main.get_command(app).main(args=["validate", *__import__("sys").argv[1:]], prog_name="python -m validation")
+    sys.exit(main(sys.argv[1:], prog_name="python -m validation", subcommand="validate"))

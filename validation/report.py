@@ -1,0 +1,197 @@
+"""The machine-readable validation report: one dict built from the check results, written as JSON.
+
+Schema (``mdgs validate --json PATH``)::
+
+    {
+      "checks": [
+        {"id", "claim", "case", "route", "verdict", "residual", "tolerance",
+         "assumptions", "counterexample", "corrected", "detail", "seconds"}
+      ],
+      "summary": {"checks", "hold", "refuted", "errors"},
+      "environment": {"python", "sympy", "pin", "mujoco", "casadi", "torch", "mdgs"}
+    }
+
+``counterexample`` is ``null`` or the object that :func:`kane.counterexamples.replay`
+(``mdgs validate --replay FILE``) accepts. ``corrected`` is ``null`` or
+``{"id", "statement", "verdict"}``: the corrected statement that ``kane`` offers for a
+refuted claim and the verdict of its own check on the same case (``null`` when that check
+was not run). The same dict feeds the docs' report page (``docs/hooks.py``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import sys
+import tempfile
+from collections.abc import Iterable, Mapping
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "ENVIRONMENT_PACKAGES",
+    "build_report",
+    "summarize",
+    "summary_line",
+    "environment",
+    "exit_code",
+    "write_json",
+    "result_to_row",
+]
+
+# Distribution names whose versions the report records (importlib.metadata names).
+ENVIRONMENT_PACKAGES = ("sympy", "pin", "mujoco", "casadi", "torch", "mdgs")
+
+
+def _field(result: Any, name: str, default: Any = None) -> Any:
+    """``result.name`` for a CheckResult, ``result[name]`` for a dict (dataset checks)."""
+    if isinstance(result, Mapping):
+        return result.get(name, default)
+    return getattr(result, name, default)
+
+
+def _finite_or_none(x: Any) -> float | None:
+    if x is None:
+        return None
+    try:
+        x = float(x)
+    except (TypeError, ValueError):
+        return None
+    return x if math.isfinite(x) else None
+
+
+def _jsonable(obj: Any) -> Any:
+    """Plain JSON types from numpy arrays/scalars, tuples and non-finite floats (-> None)."""
+    if obj is None or isinstance(obj, (bool, str, int)):
+        return obj
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, Mapping):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, set)):
+        return [_jsonable(v) for v in obj]
+    tolist = getattr(obj, "tolist", None)  # numpy arrays and scalars
+    if callable(tolist):
+        return _jsonable(tolist())
+    return str(obj)
+
+
+def result_to_row(result: Any, claims: Mapping[str, Any] | None = None, verdicts: Mapping | None = None) -> dict:
+    """One ``checks`` entry of the report from a :class:`kane.results.CheckResult` (or a dict).
+
+    Parameters
+    ----------
+    result : CheckResult or dict
+        One check outcome.
+    claims : mapping of claim id -> Claim, optional
+        ``kane.claims.CLAIMS``; gives the few-word ``claim`` title and the corrected statement.
+    verdicts : mapping of (claim id, case) -> verdict, optional
+        Verdicts of the whole run, to attach the corrected claim's own verdict.
+    """
+    claims = claims or {}
+    verdicts = verdicts or {}
+    claim_id = str(_field(result, "claim_id", ""))
+    case = str(_field(result, "case", ""))
+    claim = claims.get(claim_id)
+    corrected_id = _field(result, "corrected") or getattr(claim, "corrected_id", None)
+    corrected = None
+    if corrected_id:
+        cclaim = claims.get(corrected_id)
+        corrected = {
+            "id": corrected_id,
+            "statement": getattr(cclaim, "statement", None),
+            "verdict": verdicts.get((corrected_id, case)),
+        }
+    cex = _field(result, "counterexample")
+    return {
+        "id": claim_id,
+        "claim": getattr(claim, "title", None) or claim_id,
+        "case": case,
+        "route": str(_field(result, "route", "")),
+        "verdict": str(_field(result, "verdict", "error")),
+        "residual": _finite_or_none(_field(result, "residual")),
+        "tolerance": _finite_or_none(_field(result, "tolerance")),
+        "assumptions": _jsonable(_field(result, "assumptions") or {}),
+        "counterexample": _jsonable(cex) if cex else None,
+        "corrected": corrected,
+        "detail": str(_field(result, "detail", "") or ""),
+        "seconds": _finite_or_none(_field(result, "seconds", 0.0)),
+    }
+
+
+def summarize(rows: Iterable[Mapping]) -> dict[str, int]:
+    """Counts of verdicts: ``{"checks", "hold", "refuted", "errors"}``."""
+    rows = list(rows)
+    hold = sum(r["verdict"] == "holds" for r in rows)
+    refuted = sum(r["verdict"] == "refuted" for r in rows)
+    return {"checks": len(rows), "hold": hold, "refuted": refuted, "errors": len(rows) - hold - refuted}
+
+
+def summary_line(summary: Mapping[str, int]) -> str:
+    """``14 checks: 12 hold, 2 refuted, 0 errors``."""
+    n, h, r, e = summary["checks"], summary["hold"], summary["refuted"], summary["errors"]
+    return (
+        f"{n} check{'s' if n != 1 else ''}: {h} hold{'s' if h == 1 else ''}, "
+        f"{r} refuted, {e} error{'s' if e != 1 else ''}"
+    )
+
+
+def exit_code(summary: Mapping[str, int]) -> int:
+    """0 when every check holds, 1 when any is refuted (and none errored), 2 on any error."""
+    if summary["errors"]:
+        return 2
+    if summary["refuted"]:
+        return 1
+    return 0
+
+
+def environment() -> dict[str, str | None]:
+    """Versions of Python and of :data:`ENVIRONMENT_PACKAGES` (``None`` when not installed)."""
+    env: dict[str, str | None] = {"python": platform.python_version()}
+    for name in ENVIRONMENT_PACKAGES:
+        try:
+            env[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            env[name] = None
+    return env
+
+
+def build_report(results: Iterable[Any], claims: Mapping[str, Any] | None = None) -> dict:
+    """The report dict (see the module docstring) from check results, in run order."""
+    results = list(results)
+    verdicts = {(str(_field(r, "claim_id")), str(_field(r, "case"))): str(_field(r, "verdict")) for r in results}
+    rows = [result_to_row(r, claims, verdicts) for r in results]
+    return {"checks": rows, "summary": summarize(rows), "environment": environment()}
+
+
+def write_json(report: Mapping, path: str | os.PathLike) -> None:
+    """Write ``report`` as JSON to ``path`` atomically (temp file + ``os.replace``); ``-`` is stdout.
+
+    Raises
+    ------
+    OSError
+        When the folder of ``path`` does not exist or is not writable.
+    """
+    text = json.dumps(report, indent=2, allow_nan=False) + "\n"
+    if str(path) == "-":
+        sys.stdout.write(text)
+        sys.stdout.flush()
+        return
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
