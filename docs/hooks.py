@@ -1,0 +1,208 @@
+"""MkDocs hooks: fill the docs' placeholders from :mod:`kane` at build time.
+
+Placeholders (in any ``docs/*.md``)::
+
+    {{ latex:eq34 }}   display math: ``kane.claims.CLAIMS["eq34"].latex()``
+    {{ claim:eq34 }}   the claim's equation, statement, verdict table, counterexample (if
+                       refuted) and its corrected statement with its own equation and verdict
+    {{ report }}       the validation report: summary line, one row per check, environment
+
+The LaTeX comes from ``sympy.latex`` of the very expression the checks verify, so the pages
+cannot drift from the code. Verdicts come from the JSON report named by the environment
+variable ``MDGS_REPORT`` (written by ``mdgs validate --json PATH``); without it the hook runs
+``kane.claims.run_checks(quick=True)`` once per build. An unknown id or an unfilled
+placeholder stops the build.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import re
+import time
+
+from mkdocs.exceptions import PluginError
+
+log = logging.getLogger("mkdocs.hooks.mdgs")
+
+_PLACEHOLDER = re.compile(r"\{\{\s*(latex|claim):([A-Za-z0-9_.]+)\s*\}\}|\{\{\s*report\s*\}\}")
+_state: dict = {}
+
+
+def _claims() -> dict:
+    from kane.claims import CLAIMS
+
+    return CLAIMS
+
+
+def _report() -> dict:
+    """The report dict (see :mod:`validation.report`), computed or read once per build."""
+    if "report" not in _state:
+        path = os.environ.get("MDGS_REPORT")
+        if path:
+            try:
+                with open(path, encoding="utf-8") as f:
+                    _state["report"] = json.load(f)
+            except (OSError, json.JSONDecodeError) as e:
+                raise PluginError(f"MDGS_REPORT={path}: cannot read the report ({e}).") from e
+            _state["source"] = f"`mdgs validate --json` report `{os.path.basename(path)}`"
+        else:
+            from kane.claims import run_checks
+
+            from validation.report import build_report
+
+            t0 = time.perf_counter()
+            _state["report"] = build_report(run_checks(quick=True), _claims())
+            _state["source"] = "`mdgs validate --quick`, run while this site was built"
+            log.info("mdgs: quick validation for the docs took %.1f s", time.perf_counter() - t0)
+    return _state["report"]
+
+
+def on_pre_build(config, **kwargs) -> None:
+    """Start every build afresh (``mkdocs serve`` rebuilds)."""
+    _state.clear()
+
+
+def _fmt(x) -> str:
+    return "&ndash;" if x is None else f"{x:.3g}"
+
+
+def _escape(s: str) -> str:
+    return str(s).replace("|", "&#124;").replace("<", "&lt;").replace(">", "&gt;").replace("\n", " ")
+
+
+_BADGE = {"holds": "**holds**", "refuted": "**refuted**", "error": "*error*"}
+
+
+_LONG = 600  # characters of LaTeX above which a sum is broken over aligned lines
+_LINE = 260  # target characters of LaTeX per line
+
+
+def _display_latex(claim) -> str:
+    """``claim.latex()``; a long sum is split over lines of ``aligned`` (MathJax 3 does not
+    break lines), each line ``sympy.latex`` of consecutive terms of the same expression."""
+    import sympy as sp
+
+    full = claim.latex().strip()
+    expr = claim.expression() if callable(getattr(claim, "expression", None)) else None
+    if len(full) <= _LONG or not isinstance(expr, sp.Add):
+        return full
+    head = sp.latex(expr)
+    if not full.startswith(head):
+        return full
+    suffix = full[len(head) :]  # e.g. " \\le 0" for margins
+    lines, cur = [], ""
+    for i, term in enumerate(expr.as_ordered_terms()):
+        t = sp.latex(term)
+        if i and not t.startswith("-"):
+            t = "+ " + t
+        if cur and len(cur) + len(t) > _LINE:
+            lines.append(cur)
+            cur = ""
+        cur += (" " if cur else "") + t
+    lines.append(cur + suffix)
+    return "\\begin{aligned}\n& " + " \\\\\n& ".join(lines) + "\n\\end{aligned}"
+
+
+def _latex_block(claim_id: str) -> str:
+    claims = _claims()
+    if claim_id not in claims:
+        raise PluginError(f"docs placeholder names unknown claim '{claim_id}'; known: {', '.join(sorted(claims))}.")
+    tex = _display_latex(claims[claim_id])
+    if not tex:
+        return "*No single sympy expression: this claim is decided numerically (routes below).*"
+    return "$$\n" + tex + "\n$$"
+
+
+def _verdict_table(rows: list[dict]) -> str:
+    lines = ["| case | route | residual / margin | tolerance | verdict |", "|---|---|---:|---:|---|"]
+    for r in rows:
+        lines.append(
+            f"| {_escape(r['case'])} | {r['route']} | {_fmt(r['residual'])} | {_fmt(r['tolerance'])} | {_BADGE.get(r['verdict'], r['verdict'])} |"
+        )
+    return "\n".join(lines)
+
+
+def _cex_line(r: dict) -> str:
+    from validation.cli import counterexample_line
+
+    return counterexample_line(r["counterexample"], width=400)
+
+
+def _claim_block(claim_id: str) -> str:
+    claims = _claims()
+    if claim_id not in claims:
+        raise PluginError(f"docs placeholder names unknown claim '{claim_id}'; known: {', '.join(sorted(claims))}.")
+    c = claims[claim_id]
+    rows = [r for r in _report()["checks"] if r["id"] == claim_id]
+    out = [f"**{c.title}** &mdash; Eq. {c.equation}. {c.statement}", "", _latex_block(claim_id), ""]
+    if rows:
+        out += [_verdict_table(rows), ""]
+    else:
+        out += ["*Not checked in this report.*", ""]
+    for r in rows:
+        if r["verdict"] == "refuted" and r["counterexample"]:
+            out += [f"Counterexample ({_escape(r['case'])}, {r['route']}): `{_cex_line(r)}`", ""]
+        elif r["verdict"] == "error":
+            out += [f"Could not decide on {_escape(r['case'])}: {_escape(r['detail'])}", ""]
+    cid = getattr(c, "corrected_id", None)
+    if cid and cid in claims:
+        cc = claims[cid]
+        crow = [r for r in _report()["checks"] if r["id"] == cid]
+        out += [
+            f'!!! note "Corrected statement ({cid})"',
+            "",
+            f"    {cc.statement}",
+            "",
+            *("    " + line for line in _latex_block(cid).splitlines()),
+            "",
+        ]
+        if crow:
+            out += ["    " + line for line in _verdict_table(crow).splitlines()]
+            out.append("")
+    return "\n".join(out)
+
+
+def _report_block() -> str:
+    from validation.report import summary_line
+
+    rep = _report()
+    claims = _claims()
+    out = [f"**{summary_line(rep['summary'])}** (from {_state.get('source', 'the report')}).", ""]
+    out.append("| claim | in a few words | case | route | residual / margin | tolerance | verdict |")
+    out.append("|---|---|---|---|---:|---:|---|")
+    for r in rep["checks"]:
+        eq = getattr(claims.get(r["id"]), "equation", "")
+        out.append(
+            f"| `{r['id']}` {eq} | {_escape(r['claim'])} | {_escape(r['case'])} | {r['route']} | "
+            f"{_fmt(r['residual'])} | {_fmt(r['tolerance'])} | {_BADGE.get(r['verdict'], r['verdict'])} |"
+        )
+    notes = []
+    for r in rep["checks"]:
+        if r["verdict"] == "refuted":
+            note = f"- `{r['id']}` on {_escape(r['case'])} ({r['route']}): counterexample `{_cex_line(r) or 'none recorded'}`"
+            if r["corrected"]:
+                cc = r["corrected"]
+                note += f"; corrected `{cc['id']}`: {_escape(cc['statement'] or '')} ({_BADGE.get(cc['verdict'], 'not run')})"
+            notes.append(note)
+        elif r["verdict"] == "error":
+            notes.append(f"- `{r['id']}` on {_escape(r['case'])} ({r['route']}) could not be decided: {_escape(r['detail'])}")
+    if notes:
+        out += ["", "### Refuted and undecided checks", "", *notes]
+    env = rep.get("environment", {})
+    out += ["", "### Environment", "", "| package | version |", "|---|---|"]
+    out += [f"| {k} | {v or 'not installed'} |" for k, v in env.items()]
+    return "\n".join(out)
+
+
+def on_page_markdown(markdown: str, page, config, files, **kwargs) -> str:
+    """Replace the placeholders of one page (see the module docstring)."""
+
+    def fill(m: re.Match) -> str:
+        kind, claim_id = m.group(1), m.group(2)
+        if kind is None:
+            return _report_block()
+        return _latex_block(claim_id) if kind == "latex" else _claim_block(claim_id)
+
+    return _PLACEHOLDER.sub(fill, markdown)
