@@ -409,15 +409,17 @@ def _eq11_residuals(tr, translational: bool):
 
 
 def _eq11(case: str, translational: bool, integrator: str = "Euler", corrected: bool = False):
+    label = case if integrator == "Euler" else f"{case} ({integrator})"
+
     def fn(quick=True, **_):
         cid = "eq11.corrected" if corrected else "eq11"
         tr = _traj(case, integrator, 300 if quick else 800)
         r = _eq11_residuals(tr, translational)
         t, g = np.unravel_index(np.argmax(r), r.shape)
         tol = _tol(case)
-        cex = {"claim_id": cid, "kind": "trajectory", "case": case, "integrator": integrator, "frame": int(t), "gamma": int(g),
+        cex = {"claim_id": cid, "kind": "trajectory", "case": label, "integrator": integrator, "frame": int(t), "gamma": int(g),
                "translational": translational}
-        return _result(cid, case, Route.MUJOCO, r.max(), tol,
+        return _result(cid, label, Route.MUJOCO, r.max(), tol,
                        {"speeds": "translational (x, y, z)" if translational else "rotational (about x, y, z)",
                         "integrator": integrator, "dt": tr.dt, "elements": "box cells (2x1x1 or 2x2x2), MuJoCo mass properties",
                         "forces": "gravity" + (" + contact (mj_contactForce)" if _TRAJ_CASES[case].get("floor") else ""),
@@ -489,7 +491,7 @@ def _eq12_traj(corrected: bool):
         scale = (tr.mass * tr.tau**2).sum() * (np.linalg.norm(tr.omega, axis=1).max() ** 2 + 1)
         margin = (np.abs(psi).max(1) - rhs) / scale
         t = int(np.argmax(margin))
-        cex = {"claim_id": cid, "kind": "trajectory", "case": "cube diagonal spin", "frame": t, "psi": psi[t].tolist(),
+        cex = {"claim_id": cid, "kind": "trajectory", "case": "cube spinning about its diagonal, 2 elements", "frame": t, "psi": psi[t].tolist(),
                "rhs": float(rhs[t]), "alpha": tr.alpha[t].tolist(), "omega": tr.omega[t].tolist()}
         return _result(cid, "cube spinning about its diagonal, 2 elements", Route.MUJOCO, margin.max(), 1e-9,
                        {"speeds": "rotational (about x, y, z)", "forces": "none (space)", "elements": "2 half-cubes, MuJoCo inertia",
