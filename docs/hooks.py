@@ -69,7 +69,11 @@ def _fmt(x) -> str:
 
 
 def _escape(s: str) -> str:
-    return str(s).replace("|", "&#124;").replace("<", "&lt;").replace(">", "&gt;").replace("\n", " ")
+    """Plain text (statements, details) safe inside Markdown and its tables."""
+    s = str(s).replace("\\", "\\\\")
+    for ch in "*_`[]":
+        s = s.replace(ch, "\\" + ch)
+    return s.replace("|", "&#124;").replace("<", "&lt;").replace(">", "&gt;").replace("\n", " ")
 
 
 _BADGE = {"holds": "**holds**", "refuted": "**refuted**", "error": "*error*"}
@@ -136,7 +140,7 @@ def _claim_block(claim_id: str) -> str:
         raise PluginError(f"docs placeholder names unknown claim '{claim_id}'; known: {', '.join(sorted(claims))}.")
     c = claims[claim_id]
     rows = [r for r in _report()["checks"] if r["id"] == claim_id]
-    out = [f"**{c.title}** &mdash; Eq. {c.equation}. {c.statement}", "", _latex_block(claim_id), ""]
+    out = [f"**{_escape(c.title)}** &mdash; Eq. {c.equation}. {_escape(c.statement)}", "", _latex_block(claim_id), ""]
     if rows:
         out += [_verdict_table(rows), ""]
     else:
@@ -153,7 +157,7 @@ def _claim_block(claim_id: str) -> str:
         out += [
             f'!!! note "Corrected statement ({cid})"',
             "",
-            f"    {cc.statement}",
+            f"    {_escape(cc.statement)}",
             "",
             *("    " + line for line in _latex_block(cid).splitlines()),
             "",

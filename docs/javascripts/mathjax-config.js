@@ -1,4 +1,7 @@
-// MathJax 3 for pymdownx.arithmatex (generic mode), with mkdocs-material's instant loading.
+// MathJax 3 for pymdownx.arithmatex (generic mode). MathJax typesets the page when it loads;
+// with mkdocs-material's instant navigation, later page switches re-typeset the new content.
+// The first emission of document$ is the initial page, already typeset: clearing MathJax's
+// caches then would drop the CSS of the rendered glyphs and leave the formulas blank.
 window.MathJax = {
   tex: {
     inlineMath: [["\\(", "\\)"]],
@@ -13,7 +16,12 @@ window.MathJax = {
 };
 
 if (typeof document$ !== "undefined") {
+  let initialPage = true;
   document$.subscribe(() => {
+    if (initialPage) {
+      initialPage = false;
+      return;
+    }
     if (window.MathJax && MathJax.typesetPromise) {
       MathJax.startup.output.clearCache();
       MathJax.typesetClear();
