@@ -79,8 +79,8 @@ def _escape(s: str) -> str:
 _BADGE = {"holds": "**holds**", "refuted": "**refuted**", "error": "*error*"}
 
 
-_LONG = 600  # characters of LaTeX above which a sum is broken over aligned lines
-_LINE = 260  # target characters of LaTeX per line
+_LONG = 250  # characters of LaTeX above which a sum is broken over aligned lines
+_LINE = 140  # target characters of LaTeX per line
 
 
 def _display_latex(claim) -> str:
@@ -120,10 +120,10 @@ def _latex_block(claim_id: str) -> str:
 
 
 def _verdict_table(rows: list[dict]) -> str:
-    lines = ["| case | route | residual / margin | tolerance | verdict |", "|---|---|---:|---:|---|"]
+    lines = ["| case | route | verdict | residual / margin | tolerance |", "|---|---|---|---:|---:|"]
     for r in rows:
         lines.append(
-            f"| {_escape(r['case'])} | {r['route']} | {_fmt(r['residual'])} | {_fmt(r['tolerance'])} | {_BADGE.get(r['verdict'], r['verdict'])} |"
+            f"| {_escape(r['case'])} | {r['route']} | {_BADGE.get(r['verdict'], r['verdict'])} | {_fmt(r['residual'])} | {_fmt(r['tolerance'])} |"
         )
     return "\n".join(lines)
 
@@ -174,13 +174,13 @@ def _report_block() -> str:
     rep = _report()
     claims = _claims()
     out = [f"**{summary_line(rep['summary'])}** (from {_state.get('source', 'the report')}).", ""]
-    out.append("| claim | in a few words | case | route | residual / margin | tolerance | verdict |")
-    out.append("|---|---|---|---|---:|---:|---|")
+    out.append("| claim | case | route | verdict | residual / margin | tolerance |")
+    out.append("|---|---|---|---|---:|---:|")
     for r in rep["checks"]:
         eq = getattr(claims.get(r["id"]), "equation", "")
         out.append(
-            f"| `{r['id']}` {eq} | {_escape(r['claim'])} | {_escape(r['case'])} | {r['route']} | "
-            f"{_fmt(r['residual'])} | {_fmt(r['tolerance'])} | {_BADGE.get(r['verdict'], r['verdict'])} |"
+            f"| `{r['id']}` {eq}<br>{_escape(r['claim'])} | {_escape(r['case'])} | {r['route']} | "
+            f"{_BADGE.get(r['verdict'], r['verdict'])} | {_fmt(r['residual'])} | {_fmt(r['tolerance'])} |"
         )
     notes = []
     for r in rep["checks"]:

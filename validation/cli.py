@@ -132,12 +132,12 @@ def render_table(rows: list[dict], console: Console) -> None:
     and one per error (why nothing was decided)."""
     table = Table(show_lines=False, header_style="bold")
     table.add_column("claim", no_wrap=True)
-    table.add_column("in a few words", min_width=14)
-    table.add_column("case", no_wrap=True)
+    table.add_column("in a few words", min_width=14, max_width=30)
+    table.add_column("case", min_width=12, max_width=34)
     table.add_column("route", no_wrap=True)
     table.add_column("residual / margin", justify="right", no_wrap=True)
     table.add_column("tolerance", justify="right", no_wrap=True)
-    table.add_column("verdict", no_wrap=True)
+    table.add_column("verdict", no_wrap=True, min_width=7)
     for r in rows:
         table.add_row(
             r["id"],
@@ -291,7 +291,7 @@ def _validate(quick, check, case, json_path, seed, replay, data) -> int:
     to_stdout = json_path == "-"
     console = Console(stderr=to_stdout, soft_wrap=False)
     if not console.is_terminal:  # a pipe or a file: no terminal width to respect
-        console = Console(stderr=to_stdout, soft_wrap=False, width=max(console.width, 140))
+        console = Console(stderr=to_stdout, soft_wrap=False, width=max(console.width, 150))
     stderr_console = Console(stderr=True)
     claims = _claims()
     if data is not None:
