@@ -275,7 +275,9 @@ class AnalyticSystem:
     @cached_property
     def has_contact(self) -> bool:
         """Whether any geom collides (otherwise contact is disabled in the MJCF)."""
-        return any(g.contact for b in self.bodies for g in b.geoms) or any(g.contact for g in self.world_geoms)
+        return any(g.contact for b in self.bodies for g in b.geoms) or any(
+            g.contact for g in self.world_geoms
+        )
 
     @cached_property
     def wrench_bodies(self) -> tuple[str, ...]:
@@ -297,7 +299,11 @@ class AnalyticSystem:
         h = hashlib.sha256()
         h.update(repr((_CACHE_VERSION, sp.__version__, self.name, self.derivation)).encode())
         for b in self.bodies:
-            h.update(sp.srepr((b.name, b.parent, b.pos, b.joints, b.mass, b.com, b.inertia, b.external_wrench)).encode())
+            h.update(
+                sp.srepr(
+                    (b.name, b.parent, b.pos, b.joints, b.mass, b.com, b.inertia, b.external_wrench)
+                ).encode()
+            )
         h.update(repr(self.actuators).encode())
         h.update(repr(sorted(self.params.items())).encode())
         return h.hexdigest()[:16]
@@ -380,7 +386,9 @@ class AnalyticSystem:
                 velocity_constraints=kin["vc"],
             )
         else:
-            raise ValueError(f"system {self.name!r}: unknown derivation {self.derivation!r}; use 'tree' or 'rolling_disc'")
+            raise ValueError(
+                f"system {self.name!r}: unknown derivation {self.derivation!r}; use 'tree' or 'rolling_disc'"
+            )
         fr, frstar = km.kanes_equations(kin["bodies"], kin["loads"])
         kin["fr"], kin["frstar"] = fr, frstar
         return km, kin
@@ -519,7 +527,9 @@ class SymbolicModel:
 
     @cached_property
     def _residual_fn(self) -> Callable:
-        return _lambdify([*self.q, *self.u, *self.udot, *self.inputs, *self.params], list(self.fr + self.frstar))
+        return _lambdify(
+            [*self.q, *self.u, *self.udot, *self.inputs, *self.params], list(self.fr + self.frstar)
+        )
 
     @cached_property
     def _mass_fn(self) -> Callable:
@@ -535,7 +545,9 @@ class SymbolicModel:
         for a, n in arrays_and_sizes:
             a = np.zeros(n) if a is None else np.asarray(a, dtype=float)
             if a.shape[-1] != n:
-                raise ValueError(f"{self.system.name}: expected last dimension {n}, got array of shape {a.shape}")
+                raise ValueError(
+                    f"{self.system.name}: expected last dimension {n}, got array of shape {a.shape}"
+                )
             batch = np.broadcast_shapes(batch, a.shape[:-1])
             cols += [a[..., i] for i in range(n)]
         return cols + list(self.param_values), batch
@@ -554,7 +566,9 @@ class SymbolicModel:
         ndarray, shape [..., n_u]
             N or N m per generalized speed; zero on a true motion.
         """
-        args, batch = self._args((q, len(self.q)), (u, len(self.u)), (udot, len(self.u)), (inputs, len(self.inputs)))
+        args, batch = self._args(
+            (q, len(self.q)), (u, len(self.u)), (udot, len(self.u)), (inputs, len(self.inputs))
+        )
         return _stack(self._residual_fn(*args), batch)
 
     def mass(self, q) -> np.ndarray:
@@ -599,7 +613,9 @@ def _plain_model_data(system: AnalyticSystem, km: me.KanesMethod, kin: dict) -> 
         # dependent speeds (and their time derivatives) from sympy's own constraint
         # solution u_dep = Ars u_ind
         dep_expr = list(km._Ars * sp.Matrix(u))
-        steps.append({d.diff(t): e.diff(t).xreplace(kdd) for d, e in zip(u_dep, dep_expr, strict=True)})
+        steps.append(
+            {d.diff(t): e.diff(t).xreplace(kdd) for d, e in zip(u_dep, dep_expr, strict=True)}
+        )
         steps.append(dict(zip(u_dep, dep_expr, strict=True)))
     steps.append({x.diff(t): s for x, s in zip(u, udsym, strict=True)})
     steps.append({**dict(zip(q, qsym, strict=True)), **dict(zip(u, usym, strict=True))})
@@ -608,9 +624,13 @@ def _plain_model_data(system: AnalyticSystem, km: me.KanesMethod, kin: dict) -> 
         e = sp.sympify(expr)
         for rep in steps:
             e = e.xreplace(rep)
-        left = {d for d in e.atoms(sp.Derivative)} | {f for f in e.atoms(sp.Function) if f.args == (t,)}
+        left = {d for d in e.atoms(sp.Derivative)} | {
+            f for f in e.atoms(sp.Function) if f.args == (t,)
+        }
         if left:
-            raise RuntimeError(f"{system.name}: time-dependent terms left after substitution: {left}")
+            raise RuntimeError(
+                f"{system.name}: time-dependent terms left after substitution: {left}"
+            )
         return e
 
     fr = kin["fr"].applyfunc(plain)
@@ -650,7 +670,9 @@ def _exact(x) -> sp.Expr:
 
 
 def _vec(frame: me.ReferenceFrame, c) -> me.Vector:
-    return sum((_exact(ci) * e for ci, e in zip(c, (frame.x, frame.y, frame.z), strict=True)), me.Vector(0))
+    return sum(
+        (_exact(ci) * e for ci, e in zip(c, (frame.x, frame.y, frame.z), strict=True)), me.Vector(0)
+    )
 
 
 def _tree_kinematics(system: AnalyticSystem, speeds: str = "u") -> dict:
@@ -670,7 +692,9 @@ def _tree_kinematics(system: AnalyticSystem, speeds: str = "u") -> dict:
     origins: dict[str | None, me.Point] = {None: O}
     q, u, kd, bodies, loads, inputs = [], [], [], [], [], []
     names = {"q": [], "u": []}
-    joint_frames: dict[str, tuple] = {}  # joint -> (frame before, frame after, point before, point after, axis)
+    joint_frames: dict[
+        str, tuple
+    ] = {}  # joint -> (frame before, frame after, point before, point after, axis)
 
     def new(name):
         qq = dyn(f"q_{name}")
@@ -680,7 +704,9 @@ def _tree_kinematics(system: AnalyticSystem, speeds: str = "u") -> dict:
     seen = {None}
     for b in system.bodies:
         if b.parent not in seen:
-            raise ValueError(f"system {system.name!r}: body {b.name!r} listed before its parent {b.parent!r}")
+            raise ValueError(
+                f"system {system.name!r}: body {b.name!r} listed before its parent {b.parent!r}"
+            )
         seen.add(b.name)
         P, Op = frames[b.parent], origins[b.parent]
         F = P
@@ -689,7 +715,9 @@ def _tree_kinematics(system: AnalyticSystem, speeds: str = "u") -> dict:
         for j in b.joints:
             if j.kind == "free":
                 if b.parent is not None or len(b.joints) != 1:
-                    raise ValueError(f"system {system.name!r}: free joint {j.name!r} must be the only joint of a top-level body")
+                    raise ValueError(
+                        f"system {system.name!r}: free joint {j.name!r} must be the only joint of a top-level body"
+                    )
                 comps = ["x", "y", "z", "yaw", "pitch", "roll"]
                 qs = [dyn(f"q_{j.name}_{c}") for c in comps]
                 us = [dyn(f"u_{j.name}_{c}") for c in ["vx", "vy", "vz", "wx", "wy", "wz"]]
@@ -736,7 +764,9 @@ def _tree_kinematics(system: AnalyticSystem, speeds: str = "u") -> dict:
                 joint_frames[j.name] = (F, F, pt, newpt, a)
                 pt = newpt
             else:
-                raise ValueError(f"system {system.name!r}: joint {j.name!r} has unknown kind {j.kind!r}; use hinge, slide or free")
+                raise ValueError(
+                    f"system {system.name!r}: joint {j.name!r} has unknown kind {j.kind!r}; use hinge, slide or free"
+                )
         frames[b.name], origins[b.name] = F, pt
         mass = sp.sympify(b.mass)
         if mass != 0:
@@ -749,7 +779,9 @@ def _tree_kinematics(system: AnalyticSystem, speeds: str = "u") -> dict:
     # actuators: equal and opposite torque (force) on the two sides of the joint
     for act in system.actuators:
         if act.joint not in joint_frames:
-            raise ValueError(f"system {system.name!r}: actuator {act.name!r} drives unknown joint {act.joint!r}")
+            raise ValueError(
+                f"system {system.name!r}: actuator {act.name!r} drives unknown joint {act.joint!r}"
+            )
         Fb, Fa, pb, pa, a = joint_frames[act.joint]
         tau = sp.Symbol(f"tau_{act.name}", real=True)
         inputs.append(tau)
@@ -759,10 +791,24 @@ def _tree_kinematics(system: AnalyticSystem, speeds: str = "u") -> dict:
             loads += [(Fa, tau * a), (Fb, -tau * a)]
     for b in system.bodies:
         if b.external_wrench:
-            Fx, Fy, Fz, Tx, Ty, Tz = (sp.Symbol(f"{b.name}_{c}", real=True) for c in ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz"))
+            Fx, Fy, Fz, Tx, Ty, Tz = (
+                sp.Symbol(f"{b.name}_{c}", real=True) for c in ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
+            )
             inputs += [Fx, Fy, Fz, Tx, Ty, Tz]
-            loads += [(origins[b.name], Fx * N.x + Fy * N.y + Fz * N.z), (frames[b.name], Tx * N.x + Ty * N.y + Tz * N.z)]
-    return {"frame": N, "q": q, "u": u, "kd": kd, "bodies": bodies, "loads": loads, "inputs": inputs, "names": names}
+            loads += [
+                (origins[b.name], Fx * N.x + Fy * N.y + Fz * N.z),
+                (frames[b.name], Tx * N.x + Ty * N.y + Tz * N.z),
+            ]
+    return {
+        "frame": N,
+        "q": q,
+        "u": u,
+        "kd": kd,
+        "bodies": bodies,
+        "loads": loads,
+        "inputs": inputs,
+        "names": names,
+    }
 
 
 # --------------------------------------------------------------------------------------
@@ -795,12 +841,21 @@ def _rolling_disc_kinematics(system: AnalyticSystem) -> dict:
     P = D.locatenew("P", -r * L.z)  # material point of the disc at the contact
     P.v2pt_theory(D, N, R)
     vc = [P.vel(N).dot(N.x), P.vel(N).dot(N.y)]
-    kd = [(R.ang_vel_in(N) - w_qd).dot(e) for e in (L.x, L.y, L.z)] + [q4.diff(t) - u4, q5.diff(t) - u5]
+    kd = [(R.ang_vel_in(N) - w_qd).dot(e) for e in (L.x, L.y, L.z)] + [
+        q4.diff(t) - u4,
+        q5.diff(t) - u5,
+    ]
     ixx, iyy, izz, ixy, ixz, iyz = (sp.sympify(x) for x in disc.inertia)
     Idy = me.inertia(R, ixx, iyy, izz, ixy, iyz, ixz)
     body = me.RigidBody("disc", D, R, m, (Idy, D))
-    Fx, Fy, Fz, Tx, Ty, Tz = (sp.Symbol(f"disc_{c}", real=True) for c in ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz"))
-    loads = [(D, -m * g * N.z), (D, Fx * N.x + Fy * N.y + Fz * N.z), (R, Tx * N.x + Ty * N.y + Tz * N.z)]
+    Fx, Fy, Fz, Tx, Ty, Tz = (
+        sp.Symbol(f"disc_{c}", real=True) for c in ("Fx", "Fy", "Fz", "Tx", "Ty", "Tz")
+    )
+    loads = [
+        (D, -m * g * N.z),
+        (D, Fx * N.x + Fy * N.y + Fz * N.z),
+        (R, Tx * N.x + Ty * N.y + Tz * N.z),
+    ]
     return {
         "frame": N,
         "q": [q1, q2, q3, q4, q5],
@@ -886,13 +941,19 @@ def _mjcf(system: AnalyticSystem) -> str:
         children.setdefault(b.parent, []).append(b)
 
     def geom(gs: GeomSpec, name: str) -> str:
-        attrs = [f'name="{name}"', f'type="{gs.kind}"', f'size="{" ".join(_fmt(val(s)) for s in gs.size)}"']
+        attrs = [
+            f'name="{name}"',
+            f'type="{gs.kind}"',
+            f'size="{" ".join(_fmt(val(s)) for s in gs.size)}"',
+        ]
         if any(val(p) != 0 for p in gs.pos):
             attrs.append(f'pos="{v3(gs.pos)}"')
         if gs.zaxis is not None:
             attrs.append(f'zaxis="{v3(gs.zaxis)}"')
         if gs.contact:
-            attrs.append(f'contype="1" conaffinity="1" condim="3" friction="{_fmt(val(gs.friction))} 0 0"')
+            attrs.append(
+                f'contype="1" conaffinity="1" condim="3" friction="{_fmt(val(gs.friction))} 0 0"'
+            )
         else:
             attrs.append('contype="0" conaffinity="0"')
         return "<geom " + " ".join(attrs) + "/>"
@@ -930,7 +991,11 @@ def _mjcf(system: AnalyticSystem) -> str:
     }
     opt = " ".join(f'{k}="{v}"' for k, v in opts.items())
     flag = "" if system.has_contact else '<flag contact="disable"/>'
-    gdef = ("<geom " + " ".join(f'{k}="{v}"' for k, v in system.geom_defaults.items()) + "/>") if system.geom_defaults else ""
+    gdef = (
+        ("<geom " + " ".join(f'{k}="{v}"' for k, v in system.geom_defaults.items()) + "/>")
+        if system.geom_defaults
+        else ""
+    )
     world = [f"    {geom(gs, f'world_geom{k}')}" for k, gs in enumerate(system.world_geoms)]
     acts = [
         f'    <motor name="{a.name}" joint="{a.joint}" gear="1" ctrlrange="{_fmt(a.ctrlrange[0])} {_fmt(a.ctrlrange[1])}"/>'
@@ -987,7 +1052,9 @@ def _box_inertia(m, a, b, c) -> tuple:
 def _check_params(name: str, defaults: dict, given: dict) -> dict:
     unknown = set(given) - set(defaults)
     if unknown:
-        raise ValueError(f"system {name!r} has no parameter(s) {sorted(unknown)}; valid: {sorted(defaults)}")
+        raise ValueError(
+            f"system {name!r} has no parameter(s) {sorted(unknown)}; valid: {sorted(defaults)}"
+        )
     return {**defaults, **given}
 
 
@@ -999,10 +1066,20 @@ def particle(**params) -> AnalyticSystem:
     """
     p = _check_params("particle", {"m": 1.5, "g": 9.81, "I": 1e-6}, params)
     m, inert = symbol("m"), symbol("I")
-    joints = tuple(JointSpec(f"s{a}", "slide", ax) for a, ax in zip("xyz", np.eye(3).tolist(), strict=True))
-    body = BodySpec("particle", None, joints=joints, mass=m, inertia=(inert, inert, inert, 0, 0, 0),
-                    geoms=(GeomSpec("sphere", (0.05,)),))
-    return AnalyticSystem("particle", p, (body,), description="point mass on x, y, z slides under gravity")
+    joints = tuple(
+        JointSpec(f"s{a}", "slide", ax) for a, ax in zip("xyz", np.eye(3).tolist(), strict=True)
+    )
+    body = BodySpec(
+        "particle",
+        None,
+        joints=joints,
+        mass=m,
+        inertia=(inert, inert, inert, 0, 0, 0),
+        geoms=(GeomSpec("sphere", (0.05,)),),
+    )
+    return AnalyticSystem(
+        "particle", p, (body,), description="point mass on x, y, z slides under gravity"
+    )
 
 
 def pendulum(**params) -> AnalyticSystem:
@@ -1014,9 +1091,18 @@ def pendulum(**params) -> AnalyticSystem:
     """
     p = _check_params("pendulum", {"m": 1.0, "l": 0.8, "g": 9.81, "I": 1e-6}, params)
     m, l, inert = symbol("m"), symbol("l"), symbol("I")
-    body = BodySpec("bob", None, joints=(JointSpec("hinge", "hinge", (0.0, 1.0, 0.0)),), mass=m, com=(0, 0, -l),
-                    inertia=(inert, inert, inert, 0, 0, 0), geoms=(GeomSpec("sphere", (0.05,), pos=(0, 0, -l)),))
-    return AnalyticSystem("pendulum", p, (body,), description="simple pendulum (hinge about y, bob below the pivot)")
+    body = BodySpec(
+        "bob",
+        None,
+        joints=(JointSpec("hinge", "hinge", (0.0, 1.0, 0.0)),),
+        mass=m,
+        com=(0, 0, -l),
+        inertia=(inert, inert, inert, 0, 0, 0),
+        geoms=(GeomSpec("sphere", (0.05,), pos=(0, 0, -l)),),
+    )
+    return AnalyticSystem(
+        "pendulum", p, (body,), description="simple pendulum (hinge about y, bob below the pivot)"
+    )
 
 
 def double_pendulum(**params) -> AnalyticSystem:
@@ -1026,16 +1112,35 @@ def double_pendulum(**params) -> AnalyticSystem:
     ``g`` = 9.81 m/s^2; ``I0`` = 1e-4 kg m^2 (rod inertia about its own axis). Rod k has
     its mass centre at ``-l_k/2`` on its z axis and transverse inertia ``m_k l_k^2 / 12``.
     """
-    p = _check_params("double_pendulum", {"m1": 1.0, "m2": 0.7, "l1": 0.6, "l2": 0.5, "g": 9.81, "I0": 1e-4}, params)
+    p = _check_params(
+        "double_pendulum",
+        {"m1": 1.0, "m2": 0.7, "l1": 0.6, "l2": 0.5, "g": 9.81, "I0": 1e-4},
+        params,
+    )
     m1, m2, l1, l2, i0 = (symbol(n) for n in ("m1", "m2", "l1", "l2", "I0"))
     y = (0.0, 1.0, 0.0)
-    b1 = BodySpec("link1", None, joints=(JointSpec("hinge1", "hinge", y),), mass=m1, com=(0, 0, -l1 / 2),
-                  inertia=(m1 * l1**2 / 12, m1 * l1**2 / 12, i0, 0, 0, 0),
-                  geoms=(GeomSpec("capsule", (0.02, l1 / 2), pos=(0, 0, -l1 / 2)),))
-    b2 = BodySpec("link2", "link1", pos=(0, 0, -l1), joints=(JointSpec("hinge2", "hinge", y),), mass=m2,
-                  com=(0, 0, -l2 / 2), inertia=(m2 * l2**2 / 12, m2 * l2**2 / 12, i0, 0, 0, 0),
-                  geoms=(GeomSpec("capsule", (0.02, l2 / 2), pos=(0, 0, -l2 / 2)),))
-    return AnalyticSystem("double_pendulum", p, (b1, b2), description="double pendulum of two uniform rods")
+    b1 = BodySpec(
+        "link1",
+        None,
+        joints=(JointSpec("hinge1", "hinge", y),),
+        mass=m1,
+        com=(0, 0, -l1 / 2),
+        inertia=(m1 * l1**2 / 12, m1 * l1**2 / 12, i0, 0, 0, 0),
+        geoms=(GeomSpec("capsule", (0.02, l1 / 2), pos=(0, 0, -l1 / 2)),),
+    )
+    b2 = BodySpec(
+        "link2",
+        "link1",
+        pos=(0, 0, -l1),
+        joints=(JointSpec("hinge2", "hinge", y),),
+        mass=m2,
+        com=(0, 0, -l2 / 2),
+        inertia=(m2 * l2**2 / 12, m2 * l2**2 / 12, i0, 0, 0, 0),
+        geoms=(GeomSpec("capsule", (0.02, l2 / 2), pos=(0, 0, -l2 / 2)),),
+    )
+    return AnalyticSystem(
+        "double_pendulum", p, (b1, b2), description="double pendulum of two uniform rods"
+    )
 
 
 def free_box(gravity: bool = True, **params) -> AnalyticSystem:
@@ -1046,33 +1151,74 @@ def free_box(gravity: bool = True, **params) -> AnalyticSystem:
     origin ``cx, cy, cz`` = 0.02, -0.01, 0.03 m (non-zero so that the coupling terms between
     translation and rotation in Kane's equations are exercised).
     """
-    p = _check_params("free_box", {"m": 2.0, "a": 0.15, "b": 0.10, "c": 0.05, "g": 9.81 if gravity else 0.0,
-                                   "cx": 0.02, "cy": -0.01, "cz": 0.03}, params)
+    p = _check_params(
+        "free_box",
+        {
+            "m": 2.0,
+            "a": 0.15,
+            "b": 0.10,
+            "c": 0.05,
+            "g": 9.81 if gravity else 0.0,
+            "cx": 0.02,
+            "cy": -0.01,
+            "cz": 0.03,
+        },
+        params,
+    )
     m, a, b, c = (symbol(n) for n in "mabc")
     com = (symbol("cx"), symbol("cy"), symbol("cz"))
-    body = BodySpec("box", None, joints=(JointSpec("root", "free"),), mass=m, com=com, inertia=_box_inertia(m, a, b, c),
-                    geoms=(GeomSpec("box", (a, b, c), pos=com),))
-    return AnalyticSystem("free_box", p, (body,), description="free rigid box" + ("" if gravity else " without gravity"))
+    body = BodySpec(
+        "box",
+        None,
+        joints=(JointSpec("root", "free"),),
+        mass=m,
+        com=com,
+        inertia=_box_inertia(m, a, b, c),
+        geoms=(GeomSpec("box", (a, b, c), pos=com),),
+    )
+    return AnalyticSystem(
+        "free_box",
+        p,
+        (body,),
+        description="free rigid box" + ("" if gravity else " without gravity"),
+    )
 
 
-def _element_box(name: str, elements, half_extents, values: dict, symbolic_elements: bool = True) -> AnalyticSystem:
+def _element_box(
+    name: str, elements, half_extents, values: dict, symbolic_elements: bool = True
+) -> AnalyticSystem:
     """Box carried by a free body of zero own mass, whose mass sits in welded element bodies."""
     p = dict(values)
     h = tuple(float(x) for x in half_extents)
-    bodies = [BodySpec("box", None, joints=(JointSpec("root", "free"),), mass=0, geoms=(GeomSpec("box", h),))]
+    bodies = [
+        BodySpec(
+            "box", None, joints=(JointSpec("root", "free"),), mass=0, geoms=(GeomSpec("box", h),)
+        )
+    ]
     for i, e in enumerate(elements):
         if symbolic_elements:
             ms = symbol(f"m_e{i}")
             c = tuple(symbol(f"{a}_e{i}") for a in ("cx", "cy", "cz"))
             inert = tuple(symbol(f"{k}_e{i}") for k in ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz"))
             I3 = e.inertia
-            p.update({f"m_e{i}": e.mass, **{f"{a}_e{i}": float(e.centroid[k]) for k, a in enumerate(("cx", "cy", "cz"))},
-                      f"Ixx_e{i}": I3[0, 0], f"Iyy_e{i}": I3[1, 1], f"Izz_e{i}": I3[2, 2],
-                      f"Ixy_e{i}": I3[0, 1], f"Ixz_e{i}": I3[0, 2], f"Iyz_e{i}": I3[1, 2]})
+            p.update(
+                {
+                    f"m_e{i}": e.mass,
+                    **{f"{a}_e{i}": float(e.centroid[k]) for k, a in enumerate(("cx", "cy", "cz"))},
+                    f"Ixx_e{i}": I3[0, 0],
+                    f"Iyy_e{i}": I3[1, 1],
+                    f"Izz_e{i}": I3[2, 2],
+                    f"Ixy_e{i}": I3[0, 1],
+                    f"Ixz_e{i}": I3[0, 2],
+                    f"Iyz_e{i}": I3[1, 2],
+                }
+            )
         else:
             ms, c, inert = e
         bodies.append(BodySpec(f"element{i}", "box", pos=c, mass=ms, inertia=inert))
-    return AnalyticSystem(name, p, tuple(bodies), description=f"box as the rigid union of {len(elements)} element(s)")
+    return AnalyticSystem(
+        name, p, tuple(bodies), description=f"box as the rigid union of {len(elements)} element(s)"
+    )
 
 
 def partitioned_box(k: int = 8, jitter: float = 0.0, seed: int = 0, **params) -> AnalyticSystem:
@@ -1090,19 +1236,25 @@ def partitioned_box(k: int = 8, jitter: float = 0.0, seed: int = 0, **params) ->
 
     if k not in K_DIVISIONS:
         raise ValueError(f"partitioned_box: k must be one of {sorted(K_DIVISIONS)}, got {k}")
-    p = _check_params("partitioned_box", {"m": 2.0, "a": 0.15, "b": 0.10, "c": 0.05, "g": 9.81}, params)
+    p = _check_params(
+        "partitioned_box", {"m": 2.0, "a": 0.15, "b": 0.10, "c": 0.05, "g": 9.81}, params
+    )
     h = (p["a"], p["b"], p["c"])
     els = partition_box_k(h, k, mass=p["m"], rng=np.random.default_rng(seed), jitter=jitter)
     # a, b, c and m are recorded for reference; the mass properties are the elements'
     return _element_box(f"partitioned_box_k{k}", els, h, p)
 
 
-def element_union_box(elements, name: str = "element_union_box", g: float = 9.81, half_extents=(0.15, 0.10, 0.05)):
+def element_union_box(
+    elements, name: str = "element_union_box", g: float = 9.81, half_extents=(0.15, 0.10, 0.05)
+):
     """Box made of the given :class:`kane.elements.Element` list (see :func:`partitioned_box`)."""
     return _element_box(name, elements, half_extents, {"g": g})
 
 
-def undivided_box(elements, name: str = "undivided_box", g: float = 9.81, half_extents=(0.15, 0.10, 0.05)):
+def undivided_box(
+    elements, name: str = "undivided_box", g: float = 9.81, half_extents=(0.15, 0.10, 0.05)
+):
     """One rigid body with the mass properties of the union of ``elements``.
 
     Mass, mass centre and inertia from :func:`kane.elements.body_mass_properties`, i.e.
@@ -1111,14 +1263,34 @@ def undivided_box(elements, name: str = "undivided_box", g: float = 9.81, half_e
     from kane.elements import body_mass_properties
 
     M, com, I3 = body_mass_properties(elements)
-    p = {"g": g, "m": M, "cx": com[0], "cy": com[1], "cz": com[2], "Ixx": I3[0, 0], "Iyy": I3[1, 1],
-         "Izz": I3[2, 2], "Ixy": I3[0, 1], "Ixz": I3[0, 2], "Iyz": I3[1, 2]}
+    p = {
+        "g": g,
+        "m": M,
+        "cx": com[0],
+        "cy": com[1],
+        "cz": com[2],
+        "Ixx": I3[0, 0],
+        "Iyy": I3[1, 1],
+        "Izz": I3[2, 2],
+        "Ixy": I3[0, 1],
+        "Ixz": I3[0, 2],
+        "Iyz": I3[1, 2],
+    }
     c = (symbol("cx"), symbol("cy"), symbol("cz"))
     inert = tuple(symbol(n) for n in ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz"))
     h = tuple(float(x) for x in half_extents)
-    body = BodySpec("box", None, joints=(JointSpec("root", "free"),), mass=symbol("m"), com=c, inertia=inert,
-                    geoms=(GeomSpec("box", h),))
-    return AnalyticSystem(name, p, (body,), description="undivided box with the union's mass properties")
+    body = BodySpec(
+        "box",
+        None,
+        joints=(JointSpec("root", "free"),),
+        mass=symbol("m"),
+        com=c,
+        inertia=inert,
+        geoms=(GeomSpec("box", h),),
+    )
+    return AnalyticSystem(
+        name, p, (body,), description="undivided box with the union's mass properties"
+    )
 
 
 def flywheel_box_planar(**params) -> AnalyticSystem:
@@ -1130,19 +1302,53 @@ def flywheel_box_planar(**params) -> AnalyticSystem:
     ``tau_max`` = 0.5 N m. Flywheel inertia: thin disc, ``mw rw^2 / 2`` about y and
     ``mw rw^2 / 4`` about x, z.
     """
-    p = _check_params("flywheel_box_planar", {"mb": 1.2, "a": 0.1, "b": 0.05, "c": 0.1, "mw": 0.3, "rw": 0.08,
-                                              "dx": 0.02, "dz": 0.03, "g": 9.81, "tau_max": 0.5}, params)
+    p = _check_params(
+        "flywheel_box_planar",
+        {
+            "mb": 1.2,
+            "a": 0.1,
+            "b": 0.05,
+            "c": 0.1,
+            "mw": 0.3,
+            "rw": 0.08,
+            "dx": 0.02,
+            "dz": 0.03,
+            "g": 9.81,
+            "tau_max": 0.5,
+        },
+        params,
+    )
     mb, a, b, c, mw, rw, dx, dz = (symbol(n) for n in ("mb", "a", "b", "c", "mw", "rw", "dx", "dz"))
     y = (0.0, 1.0, 0.0)
-    base = BodySpec("base", None, joints=(JointSpec("x", "slide", (1.0, 0.0, 0.0)), JointSpec("z", "slide", (0.0, 0.0, 1.0)),
-                                          JointSpec("pitch", "hinge", y)),
-                    mass=mb, inertia=_box_inertia(mb, a, b, c), geoms=(GeomSpec("box", (a, b, c)),))
-    wheel = BodySpec("wheel", "base", pos=(dx, 0, dz), joints=(JointSpec("wheel", "hinge", y),), mass=mw,
-                     inertia=(mw * rw**2 / 4, mw * rw**2 / 2, mw * rw**2 / 4, 0, 0, 0),
-                     geoms=(GeomSpec("cylinder", (rw, 0.01), zaxis=(0, 1, 0)),))
+    base = BodySpec(
+        "base",
+        None,
+        joints=(
+            JointSpec("x", "slide", (1.0, 0.0, 0.0)),
+            JointSpec("z", "slide", (0.0, 0.0, 1.0)),
+            JointSpec("pitch", "hinge", y),
+        ),
+        mass=mb,
+        inertia=_box_inertia(mb, a, b, c),
+        geoms=(GeomSpec("box", (a, b, c)),),
+    )
+    wheel = BodySpec(
+        "wheel",
+        "base",
+        pos=(dx, 0, dz),
+        joints=(JointSpec("wheel", "hinge", y),),
+        mass=mw,
+        inertia=(mw * rw**2 / 4, mw * rw**2 / 2, mw * rw**2 / 4, 0, 0, 0),
+        geoms=(GeomSpec("cylinder", (rw, 0.01), zaxis=(0, 1, 0)),),
+    )
     tmax = p["tau_max"]
-    return AnalyticSystem("flywheel_box_planar", p, (base, wheel), (ActuatorSpec("motor", "wheel", (-tmax, tmax)),),
-                          description="planar box with a motor-driven reaction wheel")
+    return AnalyticSystem(
+        "flywheel_box_planar",
+        p,
+        (base, wheel),
+        (ActuatorSpec("motor", "wheel", (-tmax, tmax)),),
+        description="planar box with a motor-driven reaction wheel",
+    )
 
 
 def cubli(**params) -> AnalyticSystem:
@@ -1153,10 +1359,20 @@ def cubli(**params) -> AnalyticSystem:
     from the cube origin along the next axis; ``g`` = 9.81 m/s^2; torque limit ``tau_max``
     = 0.2 N m.
     """
-    p = _check_params("cubli", {"mb": 0.4, "a": 0.075, "mw": 0.15, "rw": 0.05, "d": 0.03, "g": 9.81, "tau_max": 0.2}, params)
+    p = _check_params(
+        "cubli",
+        {"mb": 0.4, "a": 0.075, "mw": 0.15, "rw": 0.05, "d": 0.03, "g": 9.81, "tau_max": 0.2},
+        params,
+    )
     mb, a, mw, rw, d = (symbol(n) for n in ("mb", "a", "mw", "rw", "d"))
-    base = BodySpec("cube", None, joints=(JointSpec("root", "free"),), mass=mb, inertia=_box_inertia(mb, a, a, a),
-                    geoms=(GeomSpec("box", (a, a, a)),))
+    base = BodySpec(
+        "cube",
+        None,
+        joints=(JointSpec("root", "free"),),
+        mass=mb,
+        inertia=_box_inertia(mb, a, a, a),
+        geoms=(GeomSpec("box", (a, a, a)),),
+    )
     bodies = [base]
     acts = []
     tmax = p["tau_max"]
@@ -1165,11 +1381,25 @@ def cubli(**params) -> AnalyticSystem:
         pos[(k + 1) % 3] = d
         diag = [mw * rw**2 / 4] * 3
         diag[k] = mw * rw**2 / 2
-        bodies.append(BodySpec(f"wheel{k}", "cube", pos=tuple(pos), joints=(JointSpec(f"wheel{k}", "hinge", tuple(ax)),),
-                               mass=mw, inertia=(*diag, 0, 0, 0),
-                               geoms=(GeomSpec("cylinder", (rw, 0.005), zaxis=tuple(ax)),)))
+        bodies.append(
+            BodySpec(
+                f"wheel{k}",
+                "cube",
+                pos=tuple(pos),
+                joints=(JointSpec(f"wheel{k}", "hinge", tuple(ax)),),
+                mass=mw,
+                inertia=(*diag, 0, 0, 0),
+                geoms=(GeomSpec("cylinder", (rw, 0.005), zaxis=tuple(ax)),),
+            )
+        )
         acts.append(ActuatorSpec(f"motor{k}", f"wheel{k}", (-tmax, tmax)))
-    return AnalyticSystem("cubli", p, tuple(bodies), tuple(acts), description="Cubli: free cube with three reaction wheels")
+    return AnalyticSystem(
+        "cubli",
+        p,
+        tuple(bodies),
+        tuple(acts),
+        description="Cubli: free cube with three reaction wheels",
+    )
 
 
 def rolling_disc(**params) -> AnalyticSystem:
@@ -1192,18 +1422,37 @@ def rolling_disc(**params) -> AnalyticSystem:
     0.1 s of settling before recording, because the ideal rolling initial state (zero
     penetration) is not an equilibrium of the soft contact.
     """
-    p = _check_params("rolling_disc", {"m": 0.5, "r": 0.1, "h": 0.0002, "g": 9.81, "mu": 1.0}, params)
+    p = _check_params(
+        "rolling_disc", {"m": 0.5, "r": 0.1, "h": 0.0002, "g": 9.81, "mu": 1.0}, params
+    )
     m, r, h, mu = (symbol(n) for n in ("m", "r", "h", "mu"))
-    disc = BodySpec("disc", None, joints=(JointSpec("root", "free"),), mass=m,
-                    inertia=(m * r**2 / 4, m * r**2 / 2, m * r**2 / 4, 0, 0, 0),
-                    geoms=(GeomSpec("cylinder", (r, h), zaxis=(0, 1, 0), contact=True, friction=mu),),
-                    external_wrench=True)
+    disc = BodySpec(
+        "disc",
+        None,
+        joints=(JointSpec("root", "free"),),
+        mass=m,
+        inertia=(m * r**2 / 4, m * r**2 / 2, m * r**2 / 4, 0, 0, 0),
+        geoms=(GeomSpec("cylinder", (r, h), zaxis=(0, 1, 0), contact=True, friction=mu),),
+        external_wrench=True,
+    )
     floor = GeomSpec("plane", (0, 0, 1), contact=True, friction=mu)
-    return AnalyticSystem("rolling_disc", p, (disc,), world_geoms=(floor,), derivation="rolling_disc", timestep=5e-4,
-                          contact_options={"cone": "elliptic", "impratio": "10", "tolerance": "1e-12",
-                                           "iterations": "200"},
-                          geom_defaults={"solref": "0.005 1"}, settle_steps=200,
-                          description="thin disc rolling on a plane (nonholonomic)")
+    return AnalyticSystem(
+        "rolling_disc",
+        p,
+        (disc,),
+        world_geoms=(floor,),
+        derivation="rolling_disc",
+        timestep=5e-4,
+        contact_options={
+            "cone": "elliptic",
+            "impratio": "10",
+            "tolerance": "1e-12",
+            "iterations": "200",
+        },
+        geom_defaults={"solref": "0.005 1"},
+        settle_steps=200,
+        description="thin disc rolling on a plane (nonholonomic)",
+    )
 
 
 def box_on_plane(**params) -> AnalyticSystem:
@@ -1214,14 +1463,30 @@ def box_on_plane(**params) -> AnalyticSystem:
     (MuJoCo initial state only; above the half diagonal 0.132 m, so it starts free and,
     thrown down at 1 m/s or more, lands within about 30 ms).
     """
-    p = _check_params("box_on_plane", {"m": 1.0, "a": 0.1, "b": 0.07, "c": 0.05, "g": 9.81, "mu": 0.6, "z0": 0.16}, params)
+    p = _check_params(
+        "box_on_plane",
+        {"m": 1.0, "a": 0.1, "b": 0.07, "c": 0.05, "g": 9.81, "mu": 0.6, "z0": 0.16},
+        params,
+    )
     m, a, b, c, mu = (symbol(n) for n in ("m", "a", "b", "c", "mu"))
-    body = BodySpec("box", None, joints=(JointSpec("root", "free"),), mass=m, inertia=_box_inertia(m, a, b, c),
-                    geoms=(GeomSpec("box", (a, b, c), contact=True, friction=mu),), external_wrench=True)
+    body = BodySpec(
+        "box",
+        None,
+        joints=(JointSpec("root", "free"),),
+        mass=m,
+        inertia=_box_inertia(m, a, b, c),
+        geoms=(GeomSpec("box", (a, b, c), contact=True, friction=mu),),
+        external_wrench=True,
+    )
     floor = GeomSpec("plane", (0, 0, 1), contact=True, friction=mu)
-    return AnalyticSystem("box_on_plane", p, (body,), world_geoms=(floor,),
-                          contact_options={"tolerance": "1e-12", "iterations": "200"},
-                          description="free box thrown onto a plane with friction")
+    return AnalyticSystem(
+        "box_on_plane",
+        p,
+        (body,),
+        world_geoms=(floor,),
+        contact_options={"tolerance": "1e-12", "iterations": "200"},
+        description="free box thrown onto a plane with friction",
+    )
 
 
 #: registry of system factories by name; each factory takes keyword parameters.
@@ -1326,7 +1591,9 @@ def contact_wrenches(model, data, body_ids: Sequence[int]) -> np.ndarray:
     return out
 
 
-def _initial_state(system: AnalyticSystem, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+def _initial_state(
+    system: AnalyticSystem, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
     """Random initial (qpos, qvel) for ``system``; systems with contact start in contact range."""
     if system.derivation == "rolling_disc":
         lean = rng.uniform(-0.3, 0.3)
@@ -1354,7 +1621,9 @@ def _initial_state(system: AnalyticSystem, rng: np.random.Generator) -> tuple[np
     return np.concatenate(qpos), np.concatenate(qvel)
 
 
-def simulate(system: AnalyticSystem, n_steps: int = 200, seed: int = 0, ctrl: np.ndarray | None = None) -> Trajectory:
+def simulate(
+    system: AnalyticSystem, n_steps: int = 200, seed: int = 0, ctrl: np.ndarray | None = None
+) -> Trajectory:
     """Simulate ``system`` in MuJoCo (Euler integrator) from a random initial state.
 
     Each step: set ``ctrl``, ``mj_forward`` (records qacc, actuator forces, contacts), then
@@ -1390,8 +1659,15 @@ def simulate(system: AnalyticSystem, n_steps: int = 200, seed: int = 0, ctrl: np
     ctrl = np.asarray(ctrl, float).reshape(n_steps, nu)
     body_ids = [model.body(n).id for n in system.wrench_bodies]
     T = n_steps
-    rec = {k: np.zeros((T, n)) for k, n in (("qpos", model.nq), ("qvel", model.nv), ("qacc", model.nv),
-                                             ("actuator_force", nu))}
+    rec = {
+        k: np.zeros((T, n))
+        for k, n in (
+            ("qpos", model.nq),
+            ("qvel", model.nv),
+            ("qacc", model.nv),
+            ("actuator_force", nu),
+        )
+    }
     wrench = np.zeros((T, len(body_ids), 6))
     ncon = np.zeros(T, dtype=int)
     time_ = np.zeros(T)
@@ -1407,4 +1683,14 @@ def simulate(system: AnalyticSystem, n_steps: int = 200, seed: int = 0, ctrl: np
         wrench[t] = contact_wrenches(model, data, body_ids)
         ncon[t] = data.ncon
         mujoco.mj_Euler(model, data)
-    return Trajectory(system, time_, rec["qpos"], rec["qvel"], rec["qacc"], ctrl.copy(), rec["actuator_force"], wrench, ncon)
+    return Trajectory(
+        system,
+        time_,
+        rec["qpos"],
+        rec["qvel"],
+        rec["qacc"],
+        ctrl.copy(),
+        rec["actuator_force"],
+        wrench,
+        ncon,
+    )
