@@ -60,10 +60,27 @@ def _psi_scaling(corrected: bool):
     return sp.expand(psi_s - s * e.psi)  # proportionality: Psi(s r) = s Psi(r)
 
 
-def _eq11_expr():
+def _identity(kind: str):
+    """Display form of the element identities whose difference ``symbolic_element_identities`` proves zero."""
+    l, i = sp.symbols("l i", integer=True)
+    Lp = sp.Symbol("L_i", integer=True)
+    F, r, m, a = (sp.IndexedBase(x) for x in ("F", "r", "m", "a"))
+    u, w = sp.Symbol(r"\vec{u}_{i,\gamma}", commutative=False), sp.Symbol(r"\vec{\omega}_{i,\gamma}", commutative=False)
+    R, Mm, Ls = (sp.Symbol(x, commutative=False) for x in (r"\vec{R}_i", r"\vec{M}_i", r"\vec{L}^*_i"))
+    M, ai = sp.Symbol("M_i"), sp.Symbol(r"\vec{a}_i", commutative=False)
+    cross = sp.Function("cross")
+    dot = sp.Function("dot")
+    if kind == "eq17":
+        return sp.Eq(sp.Sum(dot(F[l], u + cross(w, r[l])), (l, 1, Lp)), dot(R, u) + dot(Mm, w))
+    return sp.Eq(sp.Sum(dot(-m[l] * a[l], u + cross(w, r[l])), (l, 1, Lp)), -M * dot(ai, u) - dot(Ls, w))
+
+
+def _eq11_expr(translational: bool = False):
     i, n = sp.symbols("i n", integer=True)
     Fi, Mi, vn, v = (sp.IndexedBase(x) for x in ("F_gamma", "M", "v_next", "v"))
     term = terms.eq11_element_term.xreplace({_S["F_g"]: Fi[i], _S["M"]: Mi[i], _S["v_next"]: vn[i], _S["v"]: v[i]})
+    if translational:
+        return sp.Eq(sp.Sum(term, (i, 1, n)), 0)
     return sp.Eq(sp.Sum(term, (i, 1, n)) + sp.Symbol("Psi"), 0)
 
 
@@ -84,20 +101,23 @@ def _claims() -> dict[str, Claim]:
               lambda: sp.Eq(sp.Symbol("K_gamma") + sp.Symbol("K^*_gamma"), 0)),
         Claim("lemmaA1", "elements give the same EOM", "Dividing rigid bodies into elements of point masses gives the same equations of motion as the undivided system.", "Lemma A.1"),
         Claim("eq17", "K_gamma as element sum", "K_gamma = sum_i R_i . u_{i,gamma} + M_i . omega_{i,gamma}.", "(17)",
-              lambda: terms.symbolic_element_identities()["eq17"]),
+              lambda: _identity("eq17")),
         Claim("eq19", "K*_gamma as element sum", "K*_gamma = -sum_i M_i a_i . u_{i,gamma} - L*_i . omega_{i,gamma}.", "(19)",
-              lambda: terms.symbolic_element_identities()["eq19"]),
+              lambda: _identity("eq19")),
         Claim("eq23", "one-hot partial velocities", "The partial velocity of every element centroid w.r.t. every independent speed is a one-hot vector.", "(22)-(23)",
-              corrected_id="eq23.corrected"),
-        Claim("eq23.corrected", "one-hot for translational speeds", "u_{i,gamma} = e_gamma and omega_{i,gamma} = 0 exactly when gamma is a translational speed of a free (or prismatic) base carrying every body.", "(23)*"),
+              lambda: sp.Eq(sp.Symbol(r"\vec{u}'_{i,\gamma}"), sp.Symbol(r"\vec{e}_\gamma")), "eq23.corrected"),
+        Claim("eq23.corrected", "one-hot for translational speeds", "u_{i,gamma} = e_gamma and omega_{i,gamma} = 0 exactly when gamma is a translational speed of a free (or prismatic) base carrying every body.", "(23)*",
+              lambda: sp.And(sp.Eq(sp.Symbol(r"\vec{u}'_{i,\gamma}"), sp.Symbol(r"\vec{e}_\gamma")),
+                             sp.Eq(sp.Symbol(r"\vec{\omega}_{i,\gamma}"), 0))),
         Claim("eq11", "Theorem 3.1", "sum_i F_{gamma,i} - sum_i M_i (v_gamma^{t+1} - v_gamma^t)/delta + Psi = 0 for every independent speed gamma.", "(11)",
               _eq11_expr, "eq11.corrected"),
         Claim("eq11.corrected", "Theorem 3.1, translational", "For translational speeds Psi = 0 and sum_i F_{gamma,i} = sum_i M_i (v^{t+1}-v^t)_gamma/delta exactly on Euler-integrated data (O(delta) otherwise); for other speeds only Kane's form with partial velocities holds.", "(11)*",
-              _eq11_expr),
+              lambda: _eq11_expr(True)),
         Claim("eq30", "Psi proportional to radii", "Psi is proportional to sum_i sum_l |r_{i,l}|.", "(30)",
               lambda: _psi_scaling(False), "eq30.corrected"),
         Claim("eq30.corrected", "Psi = O(tau)", "Under scaling r -> s r of the elements, Psi = s (moment term) - s^2 (inertia term): linear plus quadratic, vanishing as tau -> 0.", "(30)*",
-              lambda: _psi_scaling(True)),
+              lambda: sp.Eq(sp.Function("Psi")(sp.Symbol("s") * sp.Symbol("r")),
+                            sp.Symbol("s") * sp.Symbol("M_z") - sp.Symbol("s") ** 2 * sp.Symbol("L^*_z"))),
         Claim("eq15", "L_cst = 0 on ground truth", "The constraint loss L_sup + L_inf of Eqs. (13)-(15) is zero on exact ground-truth data.", "(15)",
               lambda: sp.Eq(sp.Symbol("L_cst"), terms.loss_cst)),
     ]
