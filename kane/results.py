@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 
-class Verdict(str, enum.Enum):
+class Verdict(enum.StrEnum):
     """Outcome of one check."""
 
     HOLDS = "holds"
@@ -21,7 +21,7 @@ class Verdict(str, enum.Enum):
     ERROR = "error"
 
 
-class Route(str, enum.Enum):
+class Route(enum.StrEnum):
     """How a verdict was reached."""
 
     SYMBOLIC = "symbolic"  # sympy: simplified to zero, or proven inequality
