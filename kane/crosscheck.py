@@ -181,10 +181,21 @@ def _pin_fext(system: AnalyticSystem, pmodel, qpos, wrench):
     import pinocchio as pin
 
     fext = [pin.Force.Zero() for _ in range(pmodel.njoints)]
+    free_qpos = dict(
+        zip(
+            (b for b, j in system.joints if j.kind == "free"),
+            (ip for ip, _ in _free_blocks(system)),
+            strict=True,
+        )
+    )
     for k, name in enumerate(system.wrench_bodies):
+        if name not in free_qpos:
+            raise ValueError(
+                f"system {system.name!r}: external wrenches are supported on free bodies only ({name!r})"
+            )
         jid = pmodel.getJointId(next(j.name for b, j in system.joints if b == name))
-        ip = _free_blocks(system)[0][0]
-        R = _quat_to_R(np.asarray(qpos)[ip + 3 : ip + 7])
+        ip = free_qpos[name]
+        R = _quat_to_R(np.asarray(qpos)[ip + 3 : ip + 7])  # world from body
         fext[jid] = pin.Force(R.T @ wrench[k, :3], R.T @ wrench[k, 3:])
     return fext
 
@@ -545,19 +556,15 @@ def _union_body_expressions(masses, coms, inertias):
 
 def _lemma_symbolic(k: int, exact_values: bool) -> tuple[float, str]:
     """Element-box Kane model minus undivided-box model with the union's mass properties."""
-    from kane.elements import partition_box_k
-    from kane.systems import BodySpec, JointSpec, _element_box
+    from kane.systems import BodySpec, JointSpec
 
-    part = get_system("partitioned_box", k=k)
-    h = (part.params["a"], part.params["b"], part.params["c"])
-    els = partition_box_k(h, k, mass=part.params["m"])
+    parted = get_system("partitioned_box", k=k)  # element i: parameters m_e<i>, cx_e<i>, ...
     ms = [symbol(f"m_e{i}") for i in range(k)]
     cs = [[symbol(f"{a}_e{i}") for a in ("cx", "cy", "cz")] for i in range(k)]
     Is = [
         [symbol(f"{n}_e{i}") for n in ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")] for i in range(k)
     ]
     M, c, I6 = _union_body_expressions(ms, cs, Is)
-    parted = _element_box(f"lemma_parts_k{k}", els, h, {"g": 9.81})
     whole = AnalyticSystem(
         f"lemma_whole_k{k}",
         dict(parted.params),

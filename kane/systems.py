@@ -1184,10 +1184,13 @@ def free_box(gravity: bool = True, **params) -> AnalyticSystem:
     )
 
 
-def _element_box(
-    name: str, elements, half_extents, values: dict, symbolic_elements: bool = True
-) -> AnalyticSystem:
-    """Box carried by a free body of zero own mass, whose mass sits in welded element bodies."""
+def _element_box(name: str, elements, half_extents, values: dict) -> AnalyticSystem:
+    """Box carried by a free body of zero own mass, whose mass sits in welded element bodies.
+
+    Element i is a body without joint at its centroid, with parameters ``m_e<i>`` (kg),
+    ``cx_e<i>, cy_e<i>, cz_e<i>`` (m, body frame) and ``Ixx_e<i> ... Iyz_e<i>`` (kg m^2,
+    about its centroid); ``values`` adds further parameters (``g``, ...).
+    """
     p = dict(values)
     h = tuple(float(x) for x in half_extents)
     bodies = [
@@ -1195,26 +1198,20 @@ def _element_box(
             "box", None, joints=(JointSpec("root", "free"),), mass=0, geoms=(GeomSpec("box", h),)
         )
     ]
+    inertia_names = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
+    inertia_index = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
     for i, e in enumerate(elements):
-        if symbolic_elements:
-            ms = symbol(f"m_e{i}")
-            c = tuple(symbol(f"{a}_e{i}") for a in ("cx", "cy", "cz"))
-            inert = tuple(symbol(f"{k}_e{i}") for k in ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz"))
-            I3 = e.inertia
-            p.update(
-                {
-                    f"m_e{i}": e.mass,
-                    **{f"{a}_e{i}": float(e.centroid[k]) for k, a in enumerate(("cx", "cy", "cz"))},
-                    f"Ixx_e{i}": I3[0, 0],
-                    f"Iyy_e{i}": I3[1, 1],
-                    f"Izz_e{i}": I3[2, 2],
-                    f"Ixy_e{i}": I3[0, 1],
-                    f"Ixz_e{i}": I3[0, 2],
-                    f"Iyz_e{i}": I3[1, 2],
-                }
-            )
-        else:
-            ms, c, inert = e
+        ms = symbol(f"m_e{i}")
+        c = tuple(symbol(f"{a}_e{i}") for a in ("cx", "cy", "cz"))
+        inert = tuple(symbol(f"{n}_e{i}") for n in inertia_names)
+        p[f"m_e{i}"] = e.mass
+        p.update({f"{a}_e{i}": float(e.centroid[k]) for k, a in enumerate(("cx", "cy", "cz"))})
+        p.update(
+            {
+                f"{n}_e{i}": float(e.inertia[ix])
+                for n, ix in zip(inertia_names, inertia_index, strict=True)
+            }
+        )
         bodies.append(BodySpec(f"element{i}", "box", pos=c, mass=ms, inertia=inert))
     return AnalyticSystem(
         name, p, tuple(bodies), description=f"box as the rigid union of {len(elements)} element(s)"
@@ -1606,7 +1603,8 @@ def _initial_state(
         if j.kind == "free":
             quat = rng.normal(size=4)
             quat /= np.linalg.norm(quat)
-            z = system.params.get("z0", rng.uniform(-0.5, 0.5))
+            z = rng.uniform(-0.5, 0.5)
+            z = system.params.get("z0", z)  # drop height of contact scenes
             qpos += [np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), z]), quat]
             vel = rng.normal(0, 1.0, 3)
             if system.has_contact:
@@ -1656,7 +1654,12 @@ def simulate(
     if ctrl is None:
         lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
         ctrl = rng.uniform(lo, hi, size=(n_steps, nu)) if nu else np.zeros((n_steps, 0))
-    ctrl = np.asarray(ctrl, float).reshape(n_steps, nu)
+    ctrl = np.asarray(ctrl, float)
+    if ctrl.shape != (n_steps, nu):
+        raise ValueError(
+            f"simulate({system.name!r}): ctrl must have shape [n_steps, nu] = [{n_steps}, {nu}], "
+            f"got {ctrl.shape}"
+        )
     body_ids = [model.body(n).id for n in system.wrench_bodies]
     T = n_steps
     rec = {
