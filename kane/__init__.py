@@ -1,6 +1,15 @@
 """kane: Kane's method, the MDGS paper's claims, and the checks that decide them.
 
-Imports without torch. Public API is listed in ``__all__``.
+Imports without torch. Public API (import from the submodules):
+
+* :mod:`kane.claims` — ``CLAIMS``, ``run_checks``: every claim, its corrected statement, its checks.
+* :mod:`kane.terms` — Kane terms of element sets and the sympy loss expressions (Eqs. 11-15);
+  ``loss_functions(backend)`` gives their generated numpy/torch/CasADi functions.
+* :mod:`kane.elements` — point-mass elements and box partitions.
+* :mod:`kane.systems` — analytic systems (sympy model + MJCF), ``get_system``, ``simulate``.
+* :mod:`kane.crosscheck` — Kane's equation and Lemma A.1 against Pinocchio and MuJoCo.
+* :mod:`kane.counterexamples` — ``replay`` of recorded counterexamples.
+* :mod:`kane.results` — ``CheckResult``, ``Verdict``, ``Route``, ``decide``.
 """
 
-__all__: list[str] = []
+__all__ = ["claims", "terms", "elements", "systems", "crosscheck", "counterexamples", "results", "codegen"]
