@@ -1,0 +1,31 @@
+"""Datasets of the MDGS scenes: recording, file format, generation (paper section 4.1).
+
+Public API:
+
+- :func:`generate`, :class:`GenerateConfig` (``mdgs generate``), :data:`PRESETS`;
+- :func:`open_dataset`, :class:`Dataset`, :class:`DatasetError` (reading, checked);
+- :data:`SCHEMA_VERSION`, :data:`FRAME_ARRAYS`, :data:`STATIC_ARRAYS` (the format);
+- :func:`load_scene`, :func:`simulate` (trajectories in memory, no files).
+"""
+
+from mdgs.data.generate import GenerateConfig, GenerateResult, generate
+from mdgs.data.io import Dataset, open_dataset
+from mdgs.data.presets import PRESETS, Preset
+from mdgs.data.schema import FRAME_ARRAYS, SCHEMA_VERSION, STATIC_ARRAYS, DatasetError
+from mdgs.data.simulate import load_scene, simulate
+
+__all__ = [
+    "GenerateConfig",
+    "GenerateResult",
+    "generate",
+    "Dataset",
+    "open_dataset",
+    "DatasetError",
+    "PRESETS",
+    "Preset",
+    "SCHEMA_VERSION",
+    "FRAME_ARRAYS",
+    "STATIC_ARRAYS",
+    "load_scene",
+    "simulate",
+]

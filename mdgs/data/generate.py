@@ -1,0 +1,301 @@
+"""``mdgs generate``: trajectories of a scene, in parallel, sharded and resumable.
+
+The unit of work is a *batch* of consecutive trajectories of one split (``Preset.batch``
+of them); each batch is simulated and written atomically to
+``OUT/.parts/{split}/{start}-{stop}.h5``. A run skips batches whose part already
+exists, so an interrupted run resumes where it stopped, losing at most the batches in
+flight and duplicating none. ``--shard I/N`` runs batches ``j`` with ``j % N == I`` of
+the global batch list, so N machines can share one ``OUT`` (or copy their parts into
+one). When every part of every split exists, the run that notices merges them, in
+order, into ``OUT/{split}.h5`` (atomically; chunks are copied verbatim) and removes the
+parts. ``OUT/generate.json`` holds the resolved configuration; its hash is stamped on
+every file, and a run with different settings refuses to mix its output with it.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import json
+import multiprocessing as mp
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import h5py
+
+from mdgs.data.io import atomic_path, merge_files, open_dataset, sha256_text, write_file
+from mdgs.data.presets import PRESETS, split_counts
+from mdgs.data.schema import SCHEMA_VERSION, DatasetError
+from mdgs.data.simulate import LoadedScene, load_scene, scene_attrs, simulate, static_arrays
+from mdgs.partition import PartitionParams
+from mdgs.scenes import SceneSpec, get_scene, user_scene
+
+__all__ = ["GenerateConfig", "GenerateResult", "generate", "resolve_scene", "plan"]
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("mdgs")
+    except Exception:
+        return "0+unknown"
+
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    """Everything ``mdgs generate`` needs. Defaults are the CLI's defaults."""
+
+    scene: str
+    """A registered scene name, or '' with ``mjcf`` set."""
+    out: str
+    preset: str = "tiny"
+    n_traj: int | None = None
+    """Total trajectories (split in the paper's proportions); the preset's counts if None."""
+    seed: int = 0
+    workers: int = 1
+    shard: tuple[int, int] = (0, 1)
+    mjcf: str | None = None
+    """A user's MJCF file (then ``scene`` is its stem)."""
+    substeps: int = 10
+    """Integrator steps per frame for user MJCF files (built-in scenes define their own)."""
+    partition: PartitionParams = field(default_factory=PartitionParams)
+    batch: int | None = None
+    """Trajectories per part file (the preset's if None)."""
+
+
+@dataclass(frozen=True)
+class GenerateResult:
+    out: Path
+    scene: str
+    files: dict[str, Path]
+    """Split files written (empty if this shard left the merge to others)."""
+    trajectories: int
+    """Trajectories simulated by this run (0 when everything was already there)."""
+    steps: int
+    """Integrator steps simulated by this run."""
+    seconds: float
+    merged: bool
+    n_nodes: int
+
+
+def resolve_scene(cfg: GenerateConfig) -> SceneSpec:
+    if cfg.mjcf:
+        return user_scene(cfg.mjcf, cfg.substeps)
+    return get_scene(cfg.scene)
+
+
+def _content(cfg: GenerateConfig, loaded: LoadedScene) -> dict:
+    """What determines the bits of the output (hashed into config_sha256)."""
+    spec = loaded.spec
+    preset = PRESETS[cfg.preset]
+    counts = (
+        split_counts(cfg.n_traj, spec.splits)
+        if cfg.n_traj is not None
+        else preset.counts(spec.splits)
+    )
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "scene": spec.name,
+        "mjcf_sha256": sha256_text(loaded.mjcf),
+        "scene_params": json.loads(json.dumps(spec.params(), default=list)),
+        "partition": cfg.partition.as_dict(),
+        "seed": int(cfg.seed),
+        "n_frames": preset.n_frames,
+        "counts": counts,
+        "batch": int(cfg.batch or preset.batch),
+        "mujoco": __import__("mujoco").__version__,
+    }
+
+
+def plan(counts: dict[str, int], batch: int) -> list[tuple[str, int, int]]:
+    """The global batch list: (split, start, stop) in split order."""
+    jobs = []
+    for split, n in counts.items():
+        jobs += [(split, s, min(n, s + batch)) for s in range(0, n, batch)]
+    return jobs
+
+
+def _part_path(out: Path, split: str, start: int, stop: int) -> Path:
+    return out / ".parts" / split / f"{start:07d}-{stop:07d}.h5"
+
+
+def _part_ok(path: Path, sha: str) -> bool:
+    """A part that exists and belongs to this configuration (a mismatch is an error)."""
+    if not path.exists():
+        return False
+    try:
+        with h5py.File(path, "r") as f:
+            theirs = str(f.attrs["config_sha256"])
+    except (OSError, KeyError):
+        path.unlink()  # unreadable: an atomic rename never leaves one, so it was damaged
+        return False
+    if theirs != sha:
+        raise DatasetError(
+            f"{path} was generated with different settings; use another --out or delete {path.parent.parent}"
+        )
+    return True
+
+
+# --- workers ---------------------------------------------------------------------------
+_WORKER: dict = {}
+
+
+def _worker_init(cfg: GenerateConfig) -> None:
+    if _WORKER.get("cfg") == cfg:
+        return  # forked from a parent that already loaded the scene
+    spec = resolve_scene(cfg)
+    loaded = load_scene(spec, cfg.partition)
+    _WORKER.update(cfg=cfg, loaded=loaded, static=static_arrays(loaded), attrs=scene_attrs(loaded))
+
+
+def _run_job(job: tuple[str, int, int], base_attrs: dict) -> tuple[str, int, int, int]:
+    split, start, stop = job
+    cfg, loaded = _WORKER["cfg"], _WORKER["loaded"]
+    n_frames = int(base_attrs["n_frames"])
+    frames = simulate(loaded, split, range(start, stop), cfg.seed, n_frames)
+    attrs = {
+        **_WORKER["attrs"],
+        **base_attrs,
+        "split": split,
+        "n_traj": stop - start,
+        "traj_start": start,
+        "complete": False,
+    }
+    path = _part_path(Path(cfg.out), split, start, stop)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_file(path, attrs, loaded.mjcf, _WORKER["static"], frames)
+    return split, start, stop, (stop - start) * n_frames * loaded.spec.substeps
+
+
+def generate(
+    cfg: GenerateConfig, progress: Callable[[int, int], None] | None = None
+) -> GenerateResult:
+    """Generate (or resume, or finish the merge of) the dataset described by ``cfg``.
+
+    ``progress(done, total)`` is called with trajectory counts of this shard.
+    """
+    t0 = time.perf_counter()
+    if cfg.preset not in PRESETS:
+        raise ValueError(f"unknown preset '{cfg.preset}'; choose one of {', '.join(PRESETS)}")
+    i, n = cfg.shard
+    if not (n >= 1 and 0 <= i < n):
+        raise ValueError(f"shard {i}/{n} is invalid; use I/N with 0 <= I < N")
+    spec = resolve_scene(cfg)
+    _worker_init(cfg)  # also validates the scene in this process
+    loaded: LoadedScene = _WORKER["loaded"]
+    content = _content(cfg, loaded)
+    sha = sha256_text(json.dumps(content, sort_keys=True))
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    _write_config(out, cfg, content, sha)
+    base_attrs = {
+        "seed": int(cfg.seed),
+        "n_frames": content["n_frames"],
+        "preset": cfg.preset,
+        "config_sha256": sha,
+        "mdgs_version": _version(),
+    }
+    counts = content["counts"]
+    jobs = plan(counts, content["batch"])
+    finished = {s for s in counts if _final_ok(out / f"{s}.h5", sha)}
+    todo = [
+        j
+        for k, j in enumerate(jobs)
+        if k % n == i and j[0] not in finished and not _part_ok(_part_path(out, *j), sha)
+    ]
+    total = sum(stop - start for k, (s, start, stop) in enumerate(jobs) if k % n == i)
+    done = total - sum(stop - start for _, start, stop in todo)
+    if progress:
+        progress(done, total)
+    steps = 0
+    ran = 0
+    if todo:
+        if cfg.workers <= 1:
+            for job in todo:
+                _, a, b, st = _run_job(job, base_attrs)
+                steps, ran, done = steps + st, ran + b - a, done + b - a
+                if progress:
+                    progress(done, total)
+        else:
+            ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+            with cf.ProcessPoolExecutor(
+                max_workers=cfg.workers, mp_context=ctx, initializer=_worker_init, initargs=(cfg,)
+            ) as pool:
+                futs = [pool.submit(_run_job, job, base_attrs) for job in todo]
+                for fut in cf.as_completed(futs):
+                    _, a, b, st = fut.result()
+                    steps, ran, done = steps + st, ran + b - a, done + b - a
+                    if progress:
+                        progress(done, total)
+    files, merged = _merge_if_ready(out, counts, jobs, sha)
+    return GenerateResult(
+        out,
+        spec.name,
+        files,
+        ran,
+        steps,
+        time.perf_counter() - t0,
+        merged,
+        loaded.inst.partition.n_nodes,
+    )
+
+
+def _final_ok(path: Path, sha: str) -> bool:
+    if not path.exists():
+        return False
+    with open_dataset(path) as ds:
+        if str(ds.attrs["config_sha256"]) != sha:
+            raise DatasetError(
+                f"{path} was generated with different settings; use another --out or delete {path}"
+            )
+    return True
+
+
+def _merge_if_ready(
+    out: Path, counts: dict[str, int], jobs, sha: str
+) -> tuple[dict[str, Path], bool]:
+    files = {}
+    for split in counts:
+        final = out / f"{split}.h5"
+        if _final_ok(final, sha):
+            files[split] = final
+            continue
+        parts = [_part_path(out, s, a, b) for s, a, b in jobs if s == split]
+        if not all(p.exists() for p in parts):
+            return {}, False
+        try:
+            merge_files(parts, final, {"complete": True})
+        except FileNotFoundError:
+            if not _final_ok(final, sha):  # another shard merged and cleaned up first
+                raise
+        files[split] = final
+    if all(s in files for s in counts):
+        shutil.rmtree(out / ".parts", ignore_errors=True)
+        return files, True
+    return files, False
+
+
+def _write_config(out: Path, cfg: GenerateConfig, content: dict, sha: str) -> None:
+    path = out / "generate.json"
+    doc = {
+        "config_sha256": sha,
+        "content": content,
+        "run": {k: v for k, v in asdict(cfg).items() if k not in ("shard", "workers", "out")},
+    }
+    text = json.dumps(doc, indent=2, sort_keys=True, default=list) + "\n"
+    if path.exists():
+        try:
+            theirs = json.loads(path.read_text()).get("config_sha256")
+        except json.JSONDecodeError:
+            theirs = None
+        if theirs not in (None, sha):
+            raise DatasetError(
+                f"{out} holds a dataset generated with different settings; use another --out or delete {out}"
+            )
+        if theirs == sha:
+            return
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)

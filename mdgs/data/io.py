@@ -1,0 +1,319 @@
+"""Reading and writing dataset files (format: :mod:`mdgs.data.schema`).
+
+Writes are atomic: a file is written under a temporary name in the same directory and
+renamed into place, so an interrupted run leaves either the whole file or none.
+HDF5 output is byte-for-byte reproducible (no timestamps, fixed order, fixed
+chunking), so the same inputs give the same file hash.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from mdgs.data.schema import (
+    FRAME_ARRAYS,
+    ROOT_ATTRS,
+    SCHEMA_VERSION,
+    STATIC_ARRAYS,
+    STRING_LISTS,
+    DatasetError,
+)
+
+__all__ = ["write_file", "merge_files", "open_dataset", "Dataset", "atomic_path", "sha256_text"]
+
+# Sparse arrays (mostly zeros) compress well; dense kinematics are stored raw (faster).
+_COMPRESSED = {
+    "node_contact_force",
+    "node_joint_force",
+    "body_contact_force",
+    "body_contact_torque",
+    "body_actuator_force",
+    "body_actuator_torque",
+    "contact_overflow",
+    "contact_count",
+    "ctrl",
+    "act",
+}
+_LIBVER = ("v110", "v110")
+_REGEN = "delete it and run the same `mdgs generate` command again"
+
+
+def sha256_text(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+@contextmanager
+def atomic_path(path: Path) -> Iterator[Path]:
+    """Yield a temporary sibling of ``path``; rename it onto ``path`` if the block succeeds."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _dataset_kwargs(name: str, shape: tuple[int, ...]) -> dict:
+    kw = {"fletcher32": True, "track_times": False}
+    if len(shape) >= 2 and shape[0] > 0 and all(shape):
+        kw["chunks"] = (1,) + tuple(shape[1:])
+        if name in _COMPRESSED:
+            kw.update(compression="gzip", compression_opts=1, shuffle=True)
+    return kw
+
+
+def _set_attrs(f: h5py.File, attrs: dict) -> None:
+    for key in ROOT_ATTRS:
+        if key in attrs:
+            f.attrs[key] = attrs[key]
+
+
+def _write_static(f: h5py.File, mjcf: str, static: dict) -> None:
+    g = f.create_group("static")
+    g.create_dataset("mjcf", data=mjcf, dtype=h5py.string_dtype(), track_times=False)
+    for spec in STATIC_ARRAYS:
+        g.create_dataset(
+            spec.name,
+            data=np.asarray(static[spec.name], dtype=spec.dtype),
+            fletcher32=True,
+            track_times=False,
+        )
+    for name in STRING_LISTS:
+        g.create_dataset(
+            name, data=[str(s) for s in static[name]], dtype=h5py.string_dtype(), track_times=False
+        )
+
+
+def write_file(path: Path, attrs: dict, mjcf: str, static: dict, frames: dict) -> None:
+    """Write one dataset (or part) file atomically."""
+    with atomic_path(path) as tmp, h5py.File(tmp, "w", libver=_LIBVER) as f:
+        _set_attrs(f, {**attrs, "schema_version": SCHEMA_VERSION, "mjcf_sha256": sha256_text(mjcf)})
+        _write_static(f, mjcf, static)
+        g = f.create_group("frames")
+        for spec in FRAME_ARRAYS:
+            a = np.ascontiguousarray(frames[spec.name], dtype=spec.dtype)
+            g.create_dataset(spec.name, data=a, **_dataset_kwargs(spec.name, a.shape))
+
+
+def merge_files(parts: Sequence[Path], path: Path, attrs: dict) -> None:
+    """Concatenate part files (in order) into ``path``, copying compressed chunks verbatim."""
+    srcs = [h5py.File(p, "r") for p in parts]
+    try:
+        first = srcs[0]
+        total = sum(int(s.attrs["n_traj"]) for s in srcs)
+        with atomic_path(path) as tmp, h5py.File(tmp, "w", libver=_LIBVER) as f:
+            _set_attrs(
+                f,
+                {
+                    **{k: first.attrs[k] for k in first.attrs},
+                    **attrs,
+                    "n_traj": total,
+                    "traj_start": 0,
+                },
+            )
+            mjcf = (
+                first["static/mjcf"][()].decode()
+                if isinstance(first["static/mjcf"][()], bytes)
+                else first["static/mjcf"][()]
+            )
+            _write_static(
+                f,
+                mjcf,
+                {k: first["static"][k][()] for k in first["static"] if k != "mjcf"}
+                | {
+                    n: [s.decode() if isinstance(s, bytes) else s for s in first["static"][n][()]]
+                    for n in STRING_LISTS
+                },
+            )
+            g = f.create_group("frames")
+            for spec in FRAME_ARRAYS:
+                src0 = first["frames"][spec.name]
+                shape = (total,) + src0.shape[1:]
+                dst = g.create_dataset(
+                    spec.name, shape=shape, dtype=spec.dtype, **_dataset_kwargs(spec.name, shape)
+                )
+                row = 0
+                for s in srcs:
+                    src = s["frames"][spec.name]
+                    n = src.shape[0]
+                    if dst.chunks is not None and src.chunks == dst.chunks and 0 not in src.shape:
+                        zeros = (0,) * (len(shape) - 1)
+                        for i in range(n):
+                            mask, data = src.id.read_direct_chunk((i, *zeros))
+                            dst.id.write_direct_chunk((row + i, *zeros), data, mask)
+                    elif n:
+                        dst[row : row + n] = src[()]
+                    row += n
+    finally:
+        for s in srcs:
+            s.close()
+
+
+class Dataset:
+    """An opened, checked dataset file. Use as a context manager or call :meth:`close`."""
+
+    def __init__(self, path: Path, f: h5py.File):
+        self.path = Path(path)
+        self._f = f
+        self.attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+        st = f["static"]
+        raw = st["mjcf"][()]
+        self.mjcf = raw.decode() if isinstance(raw, bytes) else str(raw)
+        self.static = {}
+        for k in st:
+            if k == "mjcf":
+                continue
+            v = st[k][()]
+            if k in STRING_LISTS:
+                v = [s.decode() if isinstance(s, bytes) else str(s) for s in v]
+            self.static[k] = v
+
+    @property
+    def n_traj(self) -> int:
+        return int(self.attrs["n_traj"])
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.attrs["n_frames"])
+
+    @property
+    def scene(self) -> str:
+        return str(self.attrs["scene"])
+
+    def frames(self, name: str, traj=slice(None)) -> np.ndarray:
+        """Read ``/frames/<name>`` for trajectories ``traj`` (index or slice)."""
+        try:
+            return self._f["frames"][name][traj]
+        except KeyError:
+            raise DatasetError(
+                f"{self.path}: no array '{name}' in /frames; known: {', '.join(self._f['frames'])}"
+            ) from None
+        except OSError as e:
+            raise DatasetError(f"{self.path} is corrupted ({_short(e)}); {_REGEN}") from None
+
+    def close(self) -> None:
+        self._f.close()
+
+    def __enter__(self) -> Dataset:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _short(e: Exception) -> str:
+    msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+    return msg[:160]
+
+
+def open_dataset(
+    path: str | os.PathLike, *, verify: bool = False, allow_incomplete: bool = False
+) -> Dataset:
+    """Open ``path`` and check it against the schema; raise :class:`DatasetError` if it is unusable.
+
+    Checks: an HDF5 file; schema version; every attribute and array of the schema with
+    mutually consistent shapes; the MJCF hash; node masses summing to body masses; the
+    file marked complete. With ``verify=True`` every array is also read, so a corrupted
+    chunk fails its fletcher32 checksum here rather than later.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise DatasetError(
+            f"{path} does not exist; generate it with `mdgs generate SCENE --out {path.parent}`"
+        )
+    try:
+        f = h5py.File(path, "r")
+    except OSError as e:
+        raise DatasetError(
+            f"{path} is not a readable HDF5 file, probably truncated or corrupted ({_short(e)}); {_REGEN}"
+        ) from None
+    try:
+        _check(path, f, verify, allow_incomplete)
+        return Dataset(path, f)
+    except DatasetError:
+        f.close()
+        raise
+    except (OSError, KeyError, ValueError, TypeError) as e:
+        f.close()
+        raise DatasetError(f"{path} is corrupted ({_short(e)}); {_REGEN}") from None
+
+
+def _check(path: Path, f: h5py.File, verify: bool, allow_incomplete: bool) -> None:
+    a = f.attrs
+    if "schema_version" not in a:
+        raise DatasetError(
+            f"{path} is an HDF5 file but not an MDGS dataset (no schema_version attribute); point to a file written by `mdgs generate`"
+        )
+    if int(a["schema_version"]) != SCHEMA_VERSION:
+        raise DatasetError(
+            f"{path} has schema version {int(a['schema_version'])} but this mdgs reads version {SCHEMA_VERSION}; regenerate it with this version of `mdgs generate`"
+        )
+    missing = [k for k in ROOT_ATTRS if k not in a]
+    if missing:
+        raise DatasetError(f"{path} lacks attributes {', '.join(missing)}; {_REGEN}")
+    if not allow_incomplete and not bool(a["complete"]):
+        raise DatasetError(
+            f"{path} is incomplete (generation was interrupted or is still running); rerun the same `mdgs generate` command to finish it"
+        )
+    for grp, specs in (("static", STATIC_ARRAYS), ("frames", FRAME_ARRAYS)):
+        if grp not in f:
+            raise DatasetError(f"{path} lacks the /{grp} group; {_REGEN}")
+        absent = [s.name for s in specs if s.name not in f[grp]]
+        if absent:
+            raise DatasetError(f"{path} lacks /{grp}/{absent[0]}; {_REGEN}")
+    mjcf = f["static/mjcf"][()]
+    mjcf = mjcf.decode() if isinstance(mjcf, bytes) else str(mjcf)
+    if sha256_text(mjcf) != str(a["mjcf_sha256"]):
+        raise DatasetError(
+            f"{path}: the stored MJCF does not match its hash (file corrupted or edited); {_REGEN}"
+        )
+    st = f["static"]
+    dims = {
+        "T": int(a["n_traj"]),
+        "F": int(a["n_frames"]),
+        "N": st["node_body"].shape[0],
+        "B": st["body_id"].shape[0],
+        "E": st["adjacency"].shape[0],
+        "nq": f["frames/qpos"].shape[-1],
+        "nv": f["frames/qvel"].shape[-1],
+        "nu": f["frames/ctrl"].shape[-1],
+        "na": f["frames/act"].shape[-1],
+        "3": 3,
+        "4": 4,
+        "2": 2,
+    }
+    for grp, specs in (("static", STATIC_ARRAYS), ("frames", FRAME_ARRAYS)):
+        for s in specs:
+            want = tuple(dims[d] for d in s.shape)
+            got = f[grp][s.name].shape
+            if got != want:
+                raise DatasetError(
+                    f"{path}: /{grp}/{s.name} has shape {got}, expected {want} from the file's own sizes; {_REGEN}"
+                )
+    mass, body = st["node_mass"][()], st["node_body"][()]
+    static = st["node_static"][()]
+    for bi, b in enumerate(st["body_id"][()]):
+        sel = (body == b) & ~static
+        if sel.any() and not np.isclose(mass[sel].sum(), st["body_mass"][bi], rtol=1e-9, atol=0):
+            raise DatasetError(
+                f"{path}: element masses of body {int(b)} do not sum to its mass; {_REGEN}"
+            )
+    if verify:
+        for s in FRAME_ARRAYS:
+            d = f["frames"][s.name]
+            for i in range(d.shape[0]):
+                d[i]
+
+
+def read_json_attr(ds: Dataset, key: str):
+    return json.loads(ds.attrs[key])
