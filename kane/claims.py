@@ -490,8 +490,12 @@ for _case in _TRAJ_CASES:
         CHECKS.append(CheckSpec("eq15", f"{_case} [{_b} bound]", Route.MUJOCO.value, _eq15(_case, _b), _b == "paper"))
 
 
-def _eq12_traj(corrected: bool):
-    """Cube spinning about its diagonal (torque-free, alpha = 0) split into 2 elements."""
+def _eq12_traj(corrected: bool, internal: bool = False):
+    """Cube spinning about its diagonal (torque-free, alpha = 0) split into 2 elements.
+
+    ``internal``: include in Psi the moments of the forces between elements (MuJoCo's
+    ``cfrc_int``), i.e. read F_{i,l} of Eq. (29) as *all* forces on the element's points.
+    """
 
     def fn(quick=True, **_):
         from kane.mjscene import BoxBodySpec, simulate_elements
@@ -501,21 +505,27 @@ def _eq12_traj(corrected: bool):
         tr = simulate_elements(BoxBodySpec(divisions=(2, 1, 1), gravity=(0, 0, 0), omega0=(w, w, w)), 50)
         I = tr.inertia
         Ls = np.einsum("tnab,tb->tna", I, tr.alpha) + np.cross(tr.omega[:, None, :], np.einsum("tnab,tb->tna", I, tr.omega))
-        psi = (tr.moment - Ls).sum(1)  # [T, 3]: rotational speeds about x, y, z (omega_{i,gamma} = e_gamma)
+        moment = tr.moment + (tr.internal_moment if internal else 0.0)
+        force = tr.force + (tr.internal_force if internal else 0.0)
+        psi = (moment - Ls).sum(1)  # [T, 3]: rotational speeds about x, y, z (omega_{i,gamma} = e_gamma)
         a = np.linalg.norm(tr.alpha, axis=1)[:, None]
         if corrected:
             wabs = np.linalg.norm(tr.omega, axis=1)[:, None]
             rhs = (tr.tau[None] * tr.force_abs + tr.mass[None] * tr.tau[None] ** 2 * (a + wabs**2 / 2)).sum(1)
         else:
-            rhs = (tr.tau[None] * np.linalg.norm(tr.force, axis=2) + 0.4 * tr.mass[None] * tr.tau[None] ** 2 * a).sum(1)
+            rhs = (tr.tau[None] * np.linalg.norm(force, axis=2) + 0.4 * tr.mass[None] * tr.tau[None] ** 2 * a).sum(1)
         scale = (tr.mass * tr.tau**2).sum() * (np.linalg.norm(tr.omega, axis=1).max() ** 2 + 1)
         margin = (np.abs(psi).max(1) - rhs) / scale
         t = int(np.argmax(margin))
         cex = {"claim_id": cid, "kind": "trajectory", "case": "cube spinning about its diagonal, 2 elements", "frame": t, "psi": psi[t].tolist(),
                "rhs": float(rhs[t]), "alpha": tr.alpha[t].tolist(), "omega": tr.omega[t].tolist()}
-        return _result(cid, "cube spinning about its diagonal, 2 elements", Route.MUJOCO, margin.max(), 1e-9,
+        case = "cube spinning about its diagonal, 2 elements" + (", inter-element forces in Psi" if internal else "")
+        cex["case"] = case
+        return _result(cid, case, Route.MUJOCO, margin.max(), 1e-9,
                        {"speeds": "rotational (about x, y, z)", "forces": "none (space)", "elements": "2 half-cubes, MuJoCo inertia",
-                        "loads in Psi": "external loads only (Lemma A.1 wording)", "alpha": "from MuJoCo (= 0 for a cube)"},
+                        "loads in Psi": ("external + inter-element forces (MuJoCo cfrc_int): each element then obeys Euler's "
+                                         "equation and Psi = 0") if internal else "external loads only (Lemma A.1 wording)",
+                        "alpha": "from MuJoCo (= 0 for a cube)"},
                        "largest (|Psi| - bound) / (sum M tau^2 (|omega|^2 + 1))", cex)
 
     return fn
@@ -523,6 +533,8 @@ def _eq12_traj(corrected: bool):
 
 CHECKS.append(CheckSpec("eq12", "cube spinning about its diagonal, 2 elements", Route.MUJOCO.value, _eq12_traj(False), True))
 CHECKS.append(CheckSpec("eq12.corrected", "cube spinning about its diagonal, 2 elements", Route.MUJOCO.value, _eq12_traj(True), True))
+CHECKS.append(CheckSpec("eq12", "cube spinning about its diagonal, 2 elements, inter-element forces in Psi", Route.MUJOCO.value,
+                        _eq12_traj(False, internal=True), False))
 
 
 def _eq36_disc(corrected: bool):

@@ -102,6 +102,9 @@ class ElementTrajectory:
     mass : [n] kg.  inertia : [T, n, 3, 3] world-frame inertia about each centroid, kg m^2.
     tau : [n] largest radius of each cell (half-diagonal), m.  dt : s.
     n_contacts : [T] number of active contacts.
+    internal_force, internal_moment : [T, n, 3]
+        Force and moment (about the element centroid) that the rest of the body exerts on each
+        element, from MuJoCo's ``cfrc_int`` after ``mj_rnePostConstraint`` (N, N m).
     """
 
     x: np.ndarray
@@ -116,6 +119,8 @@ class ElementTrajectory:
     tau: np.ndarray
     dt: float
     n_contacts: np.ndarray
+    internal_force: np.ndarray
+    internal_moment: np.ndarray
 
 
 def simulate_elements(spec: BoxBodySpec, n_steps: int = 200) -> ElementTrajectory:
@@ -136,7 +141,7 @@ def simulate_elements(spec: BoxBodySpec, n_steps: int = 200) -> ElementTrajector
     tau = np.array([np.linalg.norm(model.geom_size[model.body_geomadr[b]]) for b in bodies])
     body_of_geom = {int(model.body_geomadr[b]): i for i, b in enumerate(bodies)}
     T = n_steps
-    out = {k: np.zeros((T, n, 3)) for k in ("x", "v", "force", "moment")}
+    out = {k: np.zeros((T, n, 3)) for k in ("x", "v", "force", "moment", "fint", "mint")}
     force_abs = np.zeros((T, n))
     inertia = np.zeros((T, n, 3, 3))
     omega = np.zeros((T, 3))
@@ -158,6 +163,13 @@ def simulate_elements(spec: BoxBodySpec, n_steps: int = 200) -> ElementTrajector
             out["force"][t, i] = mass[i] * g
             force_abs[t, i] = mass[i] * np.linalg.norm(g)
         ncon[t] = data.ncon
+        mujoco.mj_rnePostConstraint(model, data)
+        for i, b in enumerate(bodies):
+            # cfrc_int: [torque; force] of the parent on body b, about the subtree com of b's root
+            c = data.subtree_com[model.body_rootid[b]]
+            f = data.cfrc_int[b][3:]
+            out["fint"][t, i] = f
+            out["mint"][t, i] = data.cfrc_int[b][:3] + np.cross(c - out["x"][t, i], f)
         for c in range(data.ncon):
             con = data.contact[c]
             mujoco.mj_contactForce(model, data, c, f6)
@@ -177,4 +189,4 @@ def simulate_elements(spec: BoxBodySpec, n_steps: int = 200) -> ElementTrajector
         else:
             mujoco.mj_Euler(model, data)
     return ElementTrajectory(out["x"], out["v"], omega, alpha, out["force"], out["moment"], force_abs, mass, inertia,
-                             tau, spec.dt, ncon)
+                             tau, spec.dt, ncon, out["fint"], out["mint"])
