@@ -37,9 +37,9 @@ of ~``h``). The default is the smallest ``n`` for which both tolerances of
   ``(2/5) M_i tau^2``), so the rule keeps ``Psi`` a correction, not the leading term: the
   point masses carry at least 75 % of every body's inertia. A cube at 2 x 2 x 2 cells
   misses exactly 1/4 (and 1/n^2 at n^3 cells), so compact bodies get 8 nodes, not 64.
-- ``contact_tol`` (0.75): the largest distance from a point of a geom's surface to the
-  nearest node of its body, relative to the geom's bounding radius (one cell per box
-  gives 1.0, the corner; 2 x 2 x 2 gives 0.5). Contact forces are attached to nodes
+- ``contact_tol`` (0.75): the largest distance from a point of the body's surface to
+  its nearest node, relative to the body's bounding radius about its centre of mass
+  (one cell per box gives 1.0, the corner; 2 x 2 x 2 gives 0.5). Contact forces are attached to nodes
   (section 3.2.1), so this bounds the lever-arm error of a contact force at a quarter
   of the body's size; it binds for long or flat geoms whose inertia alone would allow
   a single row of cells.
@@ -101,7 +101,7 @@ class PartitionParams:
     inertia_tol: float = 0.25
     """Largest fraction of a body's inertia (Frobenius norm) that node point masses may miss."""
     contact_tol: float = 0.75
-    """Largest surface-to-nearest-node distance, relative to each geom's bounding radius."""
+    """Largest surface-to-nearest-node distance, relative to the body's bounding radius."""
     refine: int = 1
     """Multiplier on the default level (2 doubles the cells along each dimension)."""
     level: int | None = None
@@ -132,7 +132,7 @@ class BodyReport:
     point_mass_deficit: float
     """|sum_i I_i|_F / |I_body|_F: inertia the nodes miss as point masses."""
     surface_gap: float
-    """Largest surface-to-nearest-node distance / geom bounding radius (worst geom)."""
+    """Largest surface-to-nearest-node distance / body bounding radius about its com."""
 
 
 @dataclass(frozen=True)
@@ -763,11 +763,10 @@ def _body_metrics(model: mujoco.MjModel, body: int, bc: _BodyCells):
     from scipy.spatial import cKDTree
 
     tree = cKDTree(cen)
-    gap = 0.0
-    for pts, rad in bc.surface:
-        d, _ = tree.query(pts)
-        gap = max(gap, float(d.max()) / rad)
-    return deficit, gap
+    pts = np.vstack([p for p, _ in bc.surface])
+    d, _ = tree.query(pts)
+    radius = float(np.linalg.norm(pts - com, axis=1).max())  # bounding radius about the com
+    return deficit, float(d.max()) / radius
 
 
 def _body_length(model: mujoco.MjModel, geoms: list[int]) -> float:
@@ -793,7 +792,7 @@ def default_level(
     for n in range(1, params.max_level + 1):
         bc = _cells_of_body(model, geoms, L / n)
         deficit, gap = _body_metrics(model, body, bc)
-        if (static or deficit <= params.inertia_tol) and gap <= params.contact_tol + 1e-9:
+        if (static or deficit <= params.inertia_tol + 1e-9) and gap <= params.contact_tol + 1e-9:
             return n
     return params.max_level
 

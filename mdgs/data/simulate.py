@@ -92,7 +92,7 @@ def simulate(
         mujoco.mj_resetData(m, data)
         spec.builder.initial_state(m, data, rng)
         mujoco.mj_getState(m, data, state[r], _STATE)
-    ctrl = spec.builder.controller(m, rngs, n_frames)
+    ctrl = spec.builder.controller(m, rngs, n_frames, state[:, sl["qpos"]].copy())
     fpc = 1 if ctrl.closed_loop else max(1, frames_per_call)
     reduce = FrameReducer(scene.inst, k)
     datas = [mujoco.MjData(m)]

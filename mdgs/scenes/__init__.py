@@ -10,6 +10,10 @@ from __future__ import annotations
 
 from mdgs.scenes._spec import SPLITS, SceneBuilder, SceneSpec
 from mdgs.scenes.cubli import Cubli
+from mdgs.scenes.rotational import RotationalBody
+from mdgs.scenes.space import SpaceRobot
+from mdgs.scenes.ur5husky import UR5Husky
+from mdgs.scenes.vehicle import Vehicle
 
 __all__ = [
     "SCENES",
@@ -37,6 +41,38 @@ def _cubli(name, summary, variant_of=None, **kw) -> SceneSpec:
     )
 
 
+def _rot(name, summary, hinges) -> SceneSpec:
+    return SceneSpec(
+        name,
+        "rotational",
+        summary,
+        RotationalBody(hinges=hinges),
+        has_contact=True,
+        free_floating=True,
+    )
+
+
+def _space(name, summary, **kw) -> SceneSpec:
+    return SceneSpec(name, "space", summary, SpaceRobot(**kw), has_contact=True, free_floating=True)
+
+
+def _car(name, summary, variant) -> SceneSpec:
+    return SceneSpec(
+        name, "vehicle", summary, Vehicle(variant=variant), has_contact=True, free_floating=True
+    )
+
+
+def _ur5(name, summary, interaction) -> SceneSpec:
+    return SceneSpec(
+        name,
+        "ur5husky",
+        summary,
+        UR5Husky(interaction=interaction),
+        has_contact=True,
+        free_floating=True,
+    )
+
+
 _ALL: list[SceneSpec] = [
     _cubli(
         "cubli-single",
@@ -52,6 +88,67 @@ _ALL: list[SceneSpec] = [
         "cubli-triple",
         "Cube with three flywheels (x, y, z): jumps onto edges and balances on an edge or a corner.",
         wheels="xyz",
+    ),
+    _rot(
+        "rotational-none",
+        "Gyroscope: a hub spinning on the floor with a motor-driven rotor in a bearing; wobbles, precesses, hits posts.",
+        "none",
+    ),
+    _rot(
+        "rotational-side",
+        "The gyroscope with two arms hinged at the sides of its base, swung by servos (governor-like).",
+        "side",
+    ),
+    _rot(
+        "rotational-center",
+        "The gyroscope with its column cut by a centre hinge whose motor tilts the spinning rotor.",
+        "center",
+    ),
+    _space(
+        "space-single",
+        "Free-floating satellite (no gravity) with one 6-DoF arm tracking random joint targets; the base reacts.",
+        arms=1,
+    ),
+    _space(
+        "space-double",
+        "Free-floating satellite with two 6-DoF arms on opposite faces, moving independently.",
+        arms=2,
+    ),
+    _space(
+        "space-strike",
+        "Free-floating satellite with one arm, struck by a free 4 kg box thrown at it.",
+        arms=1,
+        strike=True,
+    ),
+    _car(
+        "vehicle-original",
+        "Four-wheeled car with rear-wheel drive and steering, driven by random throttle and steering on a floor.",
+        "original",
+    ),
+    _car(
+        "vehicle-fixed-obstacle",
+        "The car driving towards a fixed wall and block, which it may hit.",
+        "fixed_obstacle",
+    ),
+    _car(
+        "vehicle-damaged",
+        "The car with a flat rear-left tyre, a dead rear-left motor and a bent front-right axle.",
+        "damaged",
+    ),
+    _car(
+        "vehicle-movable-obstacle",
+        "The car driving into a free 8 kg crate, which it pushes.",
+        "movable_obstacle",
+    ),
+    _ur5(
+        "ur5husky-original",
+        "Skid-steered Husky base carrying a UR5-sized 6-DoF arm; base and arm follow random commands.",
+        False,
+    ),
+    _ur5(
+        "ur5husky-interaction",
+        "The UR5-Husky creeping towards a table and sweeping a box and a can off it with the arm.",
+        True,
     ),
 ]
 

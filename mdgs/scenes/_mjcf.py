@@ -12,7 +12,15 @@ from collections.abc import Iterable
 
 import numpy as np
 
-__all__ = ["Mjcf", "fmt", "quat_to_mat"]
+__all__ = [
+    "Mjcf",
+    "fmt",
+    "quat_to_mat",
+    "box_volume",
+    "capsule_volume",
+    "cylinder_volume",
+    "lift_out_of_contact",
+]
 
 
 def fmt(v) -> str:
@@ -125,3 +133,27 @@ def quat_to_mat(q: np.ndarray) -> np.ndarray:
         ],
         -2,
     )
+
+
+def box_volume(half) -> float:
+    return 8.0 * float(np.prod(half))
+
+
+def capsule_volume(r: float, half_length: float) -> float:
+    return float(np.pi * r * r * 2 * half_length + 4.0 / 3.0 * np.pi * r**3)
+
+
+def cylinder_volume(r: float, half_length: float) -> float:
+    return float(np.pi * r * r * 2 * half_length)
+
+
+def lift_out_of_contact(model, data, z_adr: int, clearance: float = 1e-4) -> None:
+    """Raise a free body (qpos[z_adr] is its height) until no contact penetrates more than 0."""
+    import mujoco
+
+    for _ in range(4):
+        mujoco.mj_forward(model, data)
+        depth = min((data.contact[i].dist for i in range(data.ncon)), default=0.0)
+        if depth >= 0:
+            return
+        data.qpos[z_adr] += -depth + clearance

@@ -32,8 +32,14 @@ class SceneBuilder(Protocol):
         ...
 
     def controller(
-        self, model: mujoco.MjModel, rngs: Sequence[np.random.Generator], n_frames: int
-    ) -> Controller: ...
+        self,
+        model: mujoco.MjModel,
+        rngs: Sequence[np.random.Generator],
+        n_frames: int,
+        qpos0: np.ndarray,
+    ) -> Controller:
+        """Controls of a batch; ``qpos0 [R, nq]`` are the trajectories' initial positions."""
+        ...
 
 
 @dataclass(frozen=True)

@@ -226,7 +226,13 @@ class Cubli:
         return float(np.sqrt(2 * Ia * dE) / p["Iw"][a])
 
     # ---- controls ------------------------------------------------------------------
-    def controller(self, model: mujoco.MjModel, rngs: Sequence[np.random.Generator], n_frames: int):
+    def controller(
+        self,
+        model: mujoco.MjModel,
+        rngs: Sequence[np.random.Generator],
+        n_frames: int,
+        qpos0: np.ndarray,
+    ):
         return _CubliController(self, model, rngs, n_frames)
 
 

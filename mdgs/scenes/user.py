@@ -45,7 +45,11 @@ class UserScene:
         data.qvel[:] = data.qvel + rng.normal(0, self.velocity_noise, model.nv)
 
     def controller(
-        self, model: mujoco.MjModel, rngs: Sequence[np.random.Generator], n_frames: int
+        self,
+        model: mujoco.MjModel,
+        rngs: Sequence[np.random.Generator],
+        n_frames: int,
+        qpos0: np.ndarray,
     ) -> OpenLoop:
         lim = model.actuator_ctrllimited.astype(bool)
         low = np.where(lim, model.actuator_ctrlrange[:, 0], -1.0)
