@@ -17,9 +17,13 @@ both directions present.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import torch
+
+# CSR tensors are used deliberately (block-diagonal batches); their beta notice is noise.
+warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta")
 
 __all__ = [
     "object_edges",

@@ -1,0 +1,139 @@
+"""MDGS model (Sections 3.2-3.3): shapes, contact branch, structural module, gradient routing."""
+
+import numpy as np
+import pytest
+import torch
+
+from mdgs.graphs import SceneGraph
+from mdgs.losses import constraint_loss, mse_loss
+from mdgs.model import MDGS, ModelConfig
+
+SMALL = dict(hidden=32, global_dim=16)
+
+
+def _cubes(k=2, n_obj=2, size=0.1, gap=0.0, world=False):
+    """``n_obj`` cubes of k^3 cells along x (face-adjacent cells share an edge); optional static floor cell."""
+    pos, body, cent, adj = [], [], [], []
+    for o in range(n_obj):
+        base = len(pos)
+        ids = {}
+        for i in range(k):
+            for j in range(k):
+                for m in range(k):
+                    c = (np.array([i, j, m]) + 0.5) * size - k * size / 2
+                    ids[i, j, m] = len(pos)
+                    pos.append(c + [o * (k * size + gap), 0, 0])
+                    body.append(o + 1)
+                    cent.append(c)
+        for (i, j, m), a in ids.items():
+            for d in ((1, 0, 0), (0, 1, 0), (0, 0, 1)):
+                b = ids.get((i + d[0], j + d[1], m + d[2]))
+                if b is not None:
+                    adj.append((a, b))
+        assert len(pos) - base == k**3
+    if world:
+        pos.append([0, 0, -k * size])
+        body.append(0)
+        cent.append([0, 0, -k * size])
+    n = len(pos)
+    static = {
+        "node_body": np.array(body), "node_static": np.array(body) == 0, "node_mass": np.where(np.array(body) == 0, 0, 1.0),
+        "node_volume": np.full(n, size**3), "node_tau": np.full(n, size * np.sqrt(3) / 2),
+        "node_centroid": np.array(cent, float), "adjacency": np.array(adj), "body_id": np.arange(1, n_obj + 1),
+        "body_free": np.ones(n_obj, bool),
+    }
+    return static, torch.tensor(np.array(pos), dtype=torch.float32)
+
+
+def test_forward_shapes_and_static_nodes():
+    static, pos = _cubes(world=True)
+    sc = SceneGraph.from_static(static, has_contact=True)
+    model = MDGS(ModelConfig(**SMALL))
+    x = pos.expand(3, -1, -1).contiguous()
+    v = torch.randn_like(x)
+    p = model(sc, x, v)
+    for t in (p.x, p.v, p.force, p.force_noncontact, p.force_contact):
+        assert t.shape == x.shape
+    torch.testing.assert_close(p.force, p.force_contact + p.force_noncontact)  # Eq. (7)
+    assert torch.equal(p.x[:, -1], x[:, -1]) and torch.all(p.v[:, -1] == 0)  # world node fixed
+
+
+def test_no_contact_branch_for_scene_without_contact():
+    model = MDGS(ModelConfig(**SMALL), contact=False)
+    assert not hasattr(model, "force_contact") and not hasattr(model, "global_gather")
+    static, pos = _cubes()
+    p = model(SceneGraph.from_static(static, has_contact=False), pos[None], torch.zeros_like(pos)[None])
+    assert torch.all(p.force_contact == 0) and p.contact_edges.shape[1] == 0
+    full = MDGS(ModelConfig(**SMALL), contact=True)
+    assert sum(q.numel() for q in model.parameters()) < sum(q.numel() for q in full.parameters())
+
+
+def test_contact_forces_only_on_contact_nodes():
+    # two cubes 1 mm apart: only the facing cells are within r = 0.11 of the other cube
+    static, pos = _cubes(gap=0.001)
+    sc = SceneGraph.from_static(static, has_contact=True, contact_radius=0.11)
+    p = MDGS(ModelConfig(**SMALL))(sc, pos[None], torch.zeros_like(pos)[None])
+    touched = set(p.contact_edges[0].tolist())
+    assert touched == {4, 5, 6, 7, 8, 9, 10, 11}  # x-faces: cells with i = 1 of cube 0, i = 0 of cube 1
+    nz = set(torch.nonzero(p.force_contact[0].abs().sum(-1)).flatten().tolist())
+    assert nz <= touched and nz
+
+
+@pytest.mark.parametrize("structure", [True, False])
+def test_structural_module_keeps_objects_rigid(structure):
+    static, pos = _cubes()
+    sc = SceneGraph.from_static(static, has_contact=True)
+    model = MDGS(ModelConfig(structure=structure, dx_scale=0.05, **SMALL))
+    p = model(sc, pos[None], torch.randn_like(pos)[None])
+    x = p.x[0].double()
+    ref = torch.tensor(static["node_centroid"])
+    err = max((torch.cdist(x[s], x[s]) - torch.cdist(ref[s], ref[s])).abs().max().item()
+              for s in (slice(0, 8), slice(8, 16)))
+    assert (err < 1e-5) == structure
+
+
+def test_constraint_loss_updates_only_force_networks():
+    static, pos = _cubes()
+    sc = SceneGraph.from_static(static, has_contact=True, contact_radius=0.11)
+    model = MDGS(ModelConfig(**SMALL))
+    x = pos[None] + 0.001 * torch.randn(2, *pos.shape)
+    v = torch.randn_like(x)
+    p = model(sc, x, v)
+    L = constraint_loss(p.force, x, v, p.x, p.v, sc.mass, sc.tau, sc.obj, sc.n_obj, 0.01, moving=~sc.static)
+    L.backward()
+    assert all(q.grad is None for q in model.state.parameters())
+    assert all(q.grad is not None for q in model.force_noncontact.parameters())
+    assert any(q.grad is not None and q.grad.abs().sum() > 0 for q in model.force_contact.parameters())
+
+
+def test_model_fits_one_step():
+    """A few Adam steps on a fixed batch cut L_mse + L_cst: the whole graph is trainable."""
+    torch.manual_seed(0)
+    static, pos = _cubes()
+    sc = SceneGraph.from_static(static, has_contact=True)
+    model = MDGS(ModelConfig(structure=False, dx_scale=0.01, dv_scale=0.1, force_scale=10.0, **SMALL))
+    x = pos[None] + 0.01 * torch.randn(4, *pos.shape)
+    v = torch.randn_like(x)
+    vt = v + torch.tensor([0.0, 0.0, -0.098])
+    xt = x + 0.01 * vt
+    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+
+    def loss():
+        p = model(sc, x, v)
+        return mse_loss(p.x, p.v, xt, vt, dx_scale=0.01, dv_scale=0.1) + constraint_loss(
+            p.force, x, v, p.x, p.v, sc.mass, sc.tau, sc.obj, sc.n_obj, 0.01, scale=160.0, bound="corrected")
+
+    first = loss().item()
+    for _ in range(100):
+        opt.zero_grad()
+        L = loss()
+        L.backward()
+        opt.step()
+    assert L.item() < 0.85 * first
+
+
+def test_config_rejects_unknown_variant():
+    with pytest.raises(ValueError, match="variant"):
+        ModelConfig(variant="mdgs-x")
+    with pytest.raises(ValueError, match="bound"):
+        ModelConfig(bound="tight")
