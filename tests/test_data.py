@@ -9,11 +9,11 @@ import mujoco
 import numpy as np
 import pytest
 
+from mdgs.data.engine import load_scene, simulate, static_arrays
 from mdgs.data.generate import GenerateConfig, generate
 from mdgs.data.io import open_dataset
 from mdgs.data.record import SceneError, instrument
 from mdgs.data.schema import FRAME_ARRAYS, DatasetError
-from mdgs.data.simulate import load_scene, simulate, static_arrays
 from mdgs.scenes import get_scene
 from validation.data_checks import check_dataset
 
@@ -35,19 +35,22 @@ def tiny_dir(tmp_path_factory):
     return out
 
 
-def test_sensor_at_step_zero_is_the_initial_state(cubli):
-    """rollout's sensordata of step s is computed at the state before the step (the frame convention)."""
-    from mujoco import rollout
+def test_fields_recorded_at_step_zero_describe_the_initial_state(cubli):
+    """The batch records, for step s, fields computed at the state before the step (the frame convention)."""
+    import mujoco.batch
+
+    from mdgs.data.record import RECORD_FIELDS
 
     m = cubli.inst.model
     d = mujoco.MjData(m)
     cubli.spec.builder.initial_state(m, d, np.random.default_rng(0))
-    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    s0 = np.zeros(mujoco.mj_stateSize(m, spec))
-    mujoco.mj_getState(m, d, s0, spec)
-    _, sd = rollout.rollout(m, [mujoco.MjData(m)], s0[None], np.zeros((1, 3, m.nu)), nstep=3)
+    b = mujoco.batch.Batch(m, nsim=1, nthread=1)
+    mujoco.mj_getState(m, d, b.state[0], mujoco.mjtState.mjSTATE_INTEGRATION)
+    rec = b.rollout(3, control=np.zeros((1, 3, m.nu)), record=RECORD_FIELDS)
     mujoco.mj_forward(m, d)
-    np.testing.assert_array_equal(sd[0, 0], d.sensordata)
+    mujoco.mj_rnePostConstraint(m, d)
+    for name in RECORD_FIELDS:
+        np.testing.assert_array_equal(rec[name][0, 0], getattr(d, name), err_msg=name)
 
 
 def test_recorded_loads_equal_mass_times_mujoco_acceleration(cubli, cubli_frames):

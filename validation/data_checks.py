@@ -147,7 +147,7 @@ def check_dataset(path: str | Path) -> list[dict]:
                 f"element loads vs MuJoCo's momentum rate {eq_bk[s]:.3g} N; integrator discretization {eq_D[s]:.3g} N"
             )
             if overflow:
-                detail += f"; {overflow} substeps had more contacts than slots (element contact forces incomplete there)"
+                detail += f"; {overflow} body-substeps had more contacts than slots (their smallest contacts act at the net-force centre)"
             out.append(
                 _result(
                     "eq11",

@@ -12,7 +12,7 @@ from mdgs.data.generate import GenerateConfig, GenerateResult, generate
 from mdgs.data.io import Dataset, open_dataset
 from mdgs.data.presets import PRESETS, Preset
 from mdgs.data.schema import FRAME_ARRAYS, SCHEMA_VERSION, STATIC_ARRAYS, DatasetError
-from mdgs.data.simulate import load_scene, simulate
+from mdgs.data.engine import load_scene, simulate
 
 __all__ = [
     "GenerateConfig",

@@ -29,7 +29,8 @@ from mdgs.data.schema import (
 
 __all__ = ["write_file", "merge_files", "open_dataset", "Dataset", "atomic_path", "sha256_text"]
 
-# Sparse arrays (mostly zeros) compress well; dense kinematics are stored raw (faster).
+# Sparse arrays (mostly zeros) compress well (LZF: fast, built into h5py); dense
+# kinematics are stored raw, which is faster to write and read.
 _COMPRESSED = {
     "node_contact_force",
     "node_joint_force",
@@ -68,7 +69,7 @@ def _dataset_kwargs(name: str, shape: tuple[int, ...]) -> dict:
     if len(shape) >= 2 and shape[0] > 0 and all(shape):
         kw["chunks"] = (1,) + tuple(shape[1:])
         if name in _COMPRESSED:
-            kw.update(compression="gzip", compression_opts=1, shuffle=True)
+            kw.update(compression="lzf", shuffle=True)  # h5py's fast filter; ~2x on sparse loads
     return kw
 
 

@@ -37,7 +37,7 @@ PRESETS: dict[str, Preset] = {
     # The paper's scale: 2200 trajectories per scene (Appendix B.4). The paper gives no
     # split; 2000/100/100 keeps 91 % for training and 100 trajectories (11,000 frames)
     # per evaluation split, enough for the mean +- std of rollout MSE of Tables 1-3.
-    "paper": Preset("paper", train=2000, valid=100, test=100, batch=25),
+    "paper": Preset("paper", train=2000, valid=100, test=100, batch=50),
 }
 
 

@@ -1,30 +1,34 @@
-"""Ground-truth loads from MuJoCo: sensors that expose them, and their per-frame reduction.
+"""Ground-truth loads from MuJoCo and their reduction to recorded frames.
 
-A scene's MJCF is *instrumented*: every body gets a site at its centre of mass and
-sensors for its pose and velocity, for the force and torque its parent transmits
-(``force``/``torque`` sensors read ``cfrc_int``), for its contacts (``contact`` sensors,
-one net wrench and individual slots) and for the actuator force on each actuated
-scalar joint (``jointactuatorfrc``). Sensors add no physics, so the instrumented model
-steps exactly like the scene's own model, and ``mujoco.rollout`` evaluates them in C at
-every integrator step.
+Trajectories are stepped with :class:`mujoco.batch.Batch`, whose ``rollout`` records
+MjData fields after every integrator step, in C. The recorder reads MuJoCo's own
+per-body wrenches, computed by ``mj_rnePostConstraint`` (triggered by one
+``framelinacc`` sensor per body, which also gives MuJoCo's centre-of-mass acceleration):
+
+- ``cfrc_int[b]``: the wrench the parent exerts on body ``b`` through its joints;
+- ``cfrc_ext[b]``: the external wrench on ``b`` (contacts only: applied forces,
+  equality constraints and fluid forces are refused, see :func:`instrument`);
+- ``qfrc_actuator`` along ``xaxis``: actuator torque (force) of each scalar joint;
+
+all as [torque; force] in world axes about the subtree centre of mass of the body's
+tree root (``subtree_com``). Individual contacts come from one ``contact`` sensor per
+colliding body (the :data:`CONTACT_SLOTS` largest; the sensor reports the force of the
+body on the other, so the load is its negative).
 
 Conventions (checked numerically in ``tests/test_data.py``):
 
-- rollout returns, for step ``s``, the state *after* the step and the sensors computed
-  at the state *before* it, i.e. with the ``qacc`` that moves ``s`` to ``s+1``. Frame
-  ``f`` is step ``f * substeps``; its kinematics are read from that step's sensors.
+- for step ``s`` the batch records the state *after* the step and the derived fields
+  computed at the state *before* it, i.e. with the ``qacc`` that moves ``s`` to
+  ``s+1``. Frame ``f`` is step ``f * substeps``; its kinematics are that step's fields.
 - loads of frame ``f`` are means over its ``substeps`` steps (impulse / frame time):
   with the Euler integrator ``qvel[s+1] = qvel[s] + h qacc[s]`` exactly, so these are
   the loads that move frame ``f`` to ``f+1``.
-- ``cfrc_int[b]`` (force sensor, site frame rotated to world) is the wrench the parent
-  exerts on body ``b`` through its joints; a ``contact`` sensor with ``body1=b`` reports
-  the force of ``b`` on the other body, so the load on ``b`` is its negative.
 - torques are about the body's centre of mass, forces in the world frame.
 
-Newton per body then reads (``tests/test_data.py`` checks it at every step):
-``m_b a_b = m_b g + F_contact + F_actuator + F_joint``, and the per-node loads sum to the
-body's loads (contact forces go to the node nearest the contact point, joint forces to
-the node nearest the joint's anchor).
+Newton per body then reads ``m_b a_b = m_b g + F_contact + F_actuator + F_joint`` with
+``F_joint + F_actuator = cfrc_int[b] - sum over children c of cfrc_int[c]``, and the
+per-node loads sum to the body's loads (contact forces go to the node nearest the
+contact point, joint forces to the node nearest the joint's anchor).
 """
 
 from __future__ import annotations
@@ -35,20 +39,27 @@ import mujoco
 import numpy as np
 
 from mdgs.partition import Partition, PartitionParams, partition_model
-from mdgs.scenes._mjcf import quat_to_mat
 
-__all__ = ["SceneError", "Instrumented", "instrument", "quat_to_mat", "CONTACT_SLOTS"]
+__all__ = [
+    "SceneError",
+    "Instrumented",
+    "instrument",
+    "FrameReducer",
+    "RECORD_FIELDS",
+    "CONTACT_SLOTS",
+]
 
-CONTACT_SLOTS = 12
-"""Individual contacts reported per body and step (overflow is counted, see ``contact_overflow``)."""
+CONTACT_SLOTS = 4
+"""Individual contacts reported per body and step (the largest by force). When a body has
+more, the rest of its net contact force is put on the node nearest the net force's
+centre, so node contact forces always sum to the body's (``contact_overflow`` counts it)."""
 
 _S = mujoco.mjtSensor
 _O = mujoco.mjtObj
 _J = mujoco.mjtJoint
 # contact sensor data bits: found=1 force=2 torque=4 dist=8 pos=16 normal=32 tangent=64
-_NET_BITS, _NET_DIM = 1 | 2 | 4 | 16, 10  # found force torque pos
 _SLOT_BITS, _SLOT_DIM = 1 | 2 | 16 | 32 | 64, 13  # found force pos normal tangent
-_REDUCE_MAXFORCE, _REDUCE_NETFORCE = 2, 3
+_REDUCE_MAXFORCE = 2
 
 
 class SceneError(ValueError):
@@ -103,21 +114,10 @@ class Instrumented:
     partition: Partition
     notes: tuple[str, ...]
     """What was changed to make loads match finite differences (e.g. integrator replaced)."""
-    # sensordata column indices, arrays [nbody, ...] (row 0, the world, unused)
-    pos: np.ndarray
-    quat: np.ndarray
-    com: np.ndarray
-    linvel: np.ndarray
-    angvel: np.ndarray
-    linacc: np.ndarray
-    fint: np.ndarray
-    tint: np.ndarray
-    net: np.ndarray  # [nbody, 10] or -1
-    slots: np.ndarray  # [nbody, CONTACT_SLOTS, 13] or -1
+    linacc: np.ndarray  # [nbody, 3] sensordata columns of framelinacc (row 0 unused)
+    slots: np.ndarray  # [nbody, CONTACT_SLOTS, 13] sensordata columns, or -1
     has_contact_sensor: np.ndarray  # [nbody] bool
-    act_joints: np.ndarray  # [J] joint ids with actuator force sensors
-    act_cols: np.ndarray  # [J] sensordata column
-    # node bookkeeping
+    act_joints: np.ndarray  # [J] hinge/slide joints that actuators drive
     anchor_node: np.ndarray  # [nbody] node of b nearest its own joint anchor (-1: none)
     child_anchor_node: np.ndarray  # [nbody] node of parent(b) nearest b's joint anchor (-1: none)
 
@@ -190,41 +190,18 @@ def instrument(
     collides &= contacts_on
     collides &= base.body_weldid != 0  # bodies welded to the world do not move
 
-    sensors: list[tuple[str, int]] = []  # (key, body or joint)
+    sensors: list[tuple[str, int]] = []  # (key, body)
 
     def add(key, idx, type_, objtype, objname, intprm=None):
-        s = spec.add_sensor()
-        s.type, s.objtype, s.objname = type_, objtype, objname
-        s.name = f"_mdgs_{key}_{idx}"
+        sen = spec.add_sensor()
+        sen.type, sen.objtype, sen.objname = type_, objtype, objname
+        sen.name = f"_mdgs_{key}_{idx}"
         if intprm is not None:
-            s.intprm = np.asarray(intprm, dtype=np.int32)
+            sen.intprm = np.asarray(intprm, dtype=np.int32)
         sensors.append((key, idx))
 
-    # kinematic and joint-load sensors of every body first (a uniform 25-float block per
-    # body, so the reducer reads them as one strided view), then contacts, then actuators
-    for i in range(1, base.nbody):
-        b, name = bodies[i], bodies[i].name
-        site = b.add_site()
-        site.name = f"_mdgs_com{i}"
-        site.pos = np.asarray(base.body_ipos[i], float)
-        site.group = 5
-        add("pos", i, _S.mjSENS_FRAMEPOS, _O.mjOBJ_XBODY, name)
-        add("quat", i, _S.mjSENS_FRAMEQUAT, _O.mjOBJ_XBODY, name)
-        add("com", i, _S.mjSENS_FRAMEPOS, _O.mjOBJ_BODY, name)
-        add("linvel", i, _S.mjSENS_FRAMELINVEL, _O.mjOBJ_BODY, name)
-        add("angvel", i, _S.mjSENS_FRAMEANGVEL, _O.mjOBJ_BODY, name)
-        add("linacc", i, _S.mjSENS_FRAMELINACC, _O.mjOBJ_BODY, name)
-        add("fint", i, _S.mjSENS_FORCE, _O.mjOBJ_SITE, site.name)
-        add("tint", i, _S.mjSENS_TORQUE, _O.mjOBJ_SITE, site.name)
-    for i in np.flatnonzero(collides):
-        add(
-            "net",
-            int(i),
-            _S.mjSENS_CONTACT,
-            _O.mjOBJ_BODY,
-            bodies[i].name,
-            [_NET_BITS, _REDUCE_NETFORCE, 1],
-        )
+    for i in range(1, base.nbody):  # MuJoCo's com acceleration; triggers mj_rnePostConstraint
+        add("linacc", i, _S.mjSENS_FRAMELINACC, _O.mjOBJ_BODY, bodies[i].name)
     for i in np.flatnonzero(collides):
         add(
             "slots",
@@ -234,48 +211,30 @@ def instrument(
             bodies[i].name,
             [_SLOT_BITS, _REDUCE_MAXFORCE, contact_slots],
         )
-    act_joints = sorted({int(j) for j in _actuated_joints(base)})
-    joints = list(spec.joints)
-    for j in act_joints:
-        if not joints[j].name:
-            joints[j].name = f"_mdgs_joint{j}"
-        add("jact", j, _S.mjSENS_JOINTACTFRC, _O.mjOBJ_JOINT, joints[j].name)
     model = _compile(spec)
 
     nb = base.nbody
-    idx = {
-        k: -np.ones((nb, 3), int)
-        for k in ("pos", "com", "linvel", "angvel", "linacc", "fint", "tint")
-    }
-    idx["quat"] = -np.ones((nb, 4), int)
-    net = -np.ones((nb, _NET_DIM), int)
+    linacc = -np.ones((nb, 3), int)
     slots = -np.ones((nb, contact_slots, _SLOT_DIM), int)
-    act_cols = []
     for n, (key, i) in enumerate(sensors):
         sid = base.nsensor + n  # the scene's own sensors come first
         adr, dim = int(model.sensor_adr[sid]), int(model.sensor_dim[sid])
         cols = np.arange(adr, adr + dim)
-        if key in idx:
-            idx[key][i] = cols
-        elif key == "net":
-            net[i] = cols
-        elif key == "slots":
-            slots[i] = cols.reshape(contact_slots, _SLOT_DIM)
+        if key == "linacc":
+            linacc[i] = cols
         else:
-            act_cols.append(adr)
+            slots[i] = cols.reshape(contact_slots, _SLOT_DIM)
     anchor, child_anchor = _anchor_nodes(base, part)
     return Instrumented(
         model=model,
         partition=part,
         notes=tuple(notes),
-        net=net,
+        linacc=linacc,
         slots=slots,
         has_contact_sensor=collides,
-        act_joints=np.array(act_joints, int),
-        act_cols=np.array(act_cols, int),
+        act_joints=np.array(sorted(_actuated_joints(base)), int),
         anchor_node=anchor,
         child_anchor_node=child_anchor,
-        **idx,
     )
 
 
@@ -354,6 +313,25 @@ def _qrot(q, v, inverse: bool = False):
     return (v[0] + w * t[0] + c[0], v[1] + w * t[1] + c[1], v[2] + w * t[2] + c[2])
 
 
+def _qmat(q):
+    """Rotation matrix (9 components, row major) of unit quaternions (w, x, y, z)."""
+    w, x, y, z = q
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
+    return (
+        1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy),
+        2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx),
+        2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy),
+    )  # fmt: skip
+
+
+def _mrot(Rm, v, transpose: bool = False):
+    """R v (or R^T v) for R given as 9 components."""
+    if transpose:
+        return tuple(Rm[i] * v[0] + Rm[3 + i] * v[1] + Rm[6 + i] * v[2] for i in range(3))
+    return tuple(Rm[3 * i] * v[0] + Rm[3 * i + 1] * v[1] + Rm[3 * i + 2] * v[2] for i in range(3))
+
+
 def _mean(v, axis: int = 1):
     return tuple(c.mean(axis) for c in v)
 
@@ -369,18 +347,82 @@ def _soa(a: np.ndarray) -> tuple:
     return tuple(t)
 
 
-class FrameReducer:
-    """Turns rollout sensordata ``[R, F * k, S]`` into per-frame arrays ``[R, F, ...]``.
+class _NearestNode:
+    """Nearest node centroid of points in a body frame, exact and fast.
 
-    Loads are means over each frame's ``k`` substeps; kinematics are read at the
-    frame's first substep. Work per substep is limited to what changes within a frame
-    (rotating site-frame wrenches and actuator axes, moment arms, contact rows); sums
-    over bodies and nodes are done once per frame. See the module docstring.
+    A lookup grid over the body's cells stores, for every voxel whose 8 corners share
+    the same nearest node, that node (then every point of the voxel has it too: Voronoi
+    cells are convex). Points in other voxels, or outside the grid, are searched
+    directly.
     """
 
-    _BLOCK = (
-        25  # floats per body: pos 3, quat 4, com 3, linvel 3, angvel 3, linacc 3, fint 3, tint 3
-    )
+    def __init__(self, centroids: np.ndarray, nodes: np.ndarray, tau: np.ndarray, res: int = 24):
+        self.c, self.nodes = centroids, nodes
+        lo = (centroids - tau[:, None]).min(0)
+        hi = (centroids + tau[:, None]).max(0)
+        pad = 0.05 * (hi - lo).max() + 1e-6
+        self.lo, self.res = lo - pad, res
+        self.h = (hi - lo + 2 * pad) / res
+        g = [self.lo[i] + self.h[i] * np.arange(res + 1) for i in range(3)]
+        corners = np.stack(np.meshgrid(*g, indexing="ij"), -1).reshape(-1, 3)
+        near = self._exact(tuple(corners.T)).reshape(res + 1, res + 1, res + 1)
+        same = np.ones((res, res, res), bool)
+        base = near[:-1, :-1, :-1]
+        for dx in (0, 1):
+            for dy in (0, 1):
+                for dz in (0, 1):
+                    same &= near[dx : res + dx, dy : res + dy, dz : res + dz] == base
+        self.table = np.where(same, base, -1).ravel()
+
+    def _exact(self, p) -> np.ndarray:
+        d = sum((p[i][:, None] - self.c[None, :, i]) ** 2 for i in range(3))
+        return np.argmin(d, 1)
+
+    def __call__(self, p) -> np.ndarray:
+        """Global node ids of the points ``p`` (3 arrays, body frame)."""
+        ijk = [np.floor((p[i] - self.lo[i]) / self.h[i]).astype(np.int64) for i in range(3)]
+        inside = (
+            (ijk[0] >= 0)
+            & (ijk[0] < self.res)
+            & (ijk[1] >= 0)
+            & (ijk[1] < self.res)
+            & (ijk[2] >= 0)
+            & (ijk[2] < self.res)
+        )
+        out = np.full(p[0].shape[0], -1, np.int64)
+        flat = (ijk[0] * self.res + ijk[1]) * self.res + ijk[2]
+        out[inside] = self.table[flat[inside]]
+        miss = out < 0
+        if miss.any():
+            out[miss] = self._exact(tuple(c[miss] for c in p))
+        return self.nodes[out]
+
+
+RECORD_FIELDS = (
+    "xpos",
+    "xquat",
+    "xipos",
+    "subtree_com",
+    "cvel",
+    "cfrc_int",
+    "cfrc_ext",
+    "qfrc_actuator",
+    "xaxis",
+    "xanchor",
+    "sensordata",
+)
+"""MjData fields the batch records after every step (besides the physics state)."""
+
+
+class FrameReducer:
+    """Turns per-step records ``{field: [R, F * k, ...]}`` into per-frame arrays ``[R, F, ...]``.
+
+    Loads are means over each frame's ``k`` steps; kinematics are read at the frame's
+    first step. MuJoCo's wrenches share one reference point per tree (the root's
+    subtree centre of mass ``c``), so sums over bodies are linear and done on frame
+    means; only the move to each body's centre of mass, ``tau + (c - com) x f``, and
+    the contact rows are computed per step, where ``c - com`` changes.
+    """
 
     def __init__(self, inst: Instrumented, substeps: int):
         self.inst = inst
@@ -388,203 +430,223 @@ class FrameReducer:
         m = inst.model
         self.nb = nb = m.nbody
         self.g = np.array(m.opt.gravity, float)
+        self.root = m.body_rootid.copy()
         part = inst.partition
         self.node_body = part.body
         self.node_c = tuple(np.ascontiguousarray(part.centroid.T))
-        self.node_centroid = part.centroid
         self.N = part.body.shape[0]
-        # the body block must be one contiguous strided block (see instrument)
-        self.b0 = int(inst.pos[1, 0])
-        expect = self.b0 + self._BLOCK * np.arange(nb - 1)
-        if not (
-            np.array_equal(inst.pos[1:, 0], expect)
-            and np.array_equal(inst.tint[1:, 2], expect + 24)
-        ):
-            raise AssertionError("internal: body sensors are not in one strided block")
         par = m.body_parentid.copy()
+        self.parent = par
         self.children = np.array([b for b in range(1, nb) if par[b] != 0], int)
-        self.parents = par[self.children]
-        jt = m.jnt_type[inst.act_joints] if len(inst.act_joints) else np.zeros(0, int)
-        self.act_body = m.jnt_bodyid[inst.act_joints].astype(int)
+        j = inst.act_joints
+        self.act_joint = j
+        self.act_dof = m.jnt_dofadr[j].astype(int)
+        self.act_body = m.jnt_bodyid[j].astype(int)
         self.act_parent = par[self.act_body]
-        self.act_axis = m.jnt_axis[inst.act_joints].copy()
-        self.act_pos = m.jnt_pos[inst.act_joints].copy()
-        self.act_slide = jt == int(_J.mjJNT_SLIDE)
-        self.act0 = int(inst.act_cols[0]) if len(inst.act_cols) else 0
-        if len(inst.act_cols) and not np.array_equal(
-            inst.act_cols, self.act0 + np.arange(len(inst.act_cols))
-        ):
-            raise AssertionError("internal: actuator sensors are not contiguous")
+        self.act_slide = m.jnt_type[j] == int(_J.mjJNT_SLIDE)
+        self.lin0 = int(inst.linacc[1, 0])
+        if not np.array_equal(inst.linacc[1:].ravel(), self.lin0 + np.arange(3 * (nb - 1))):
+            raise AssertionError("internal: acceleration sensors are not contiguous")
         self.cb = np.flatnonzero(inst.has_contact_sensor)  # bodies with contact sensors
         if len(self.cb):
-            self.net0 = int(inst.net[self.cb[0], 0])
             self.slot0 = int(inst.slots[self.cb[0], 0, 0])
             self.nslot = inst.slots.shape[1]
-        self.body_nodes = {int(b): part.nodes_of(b) for b in self.cb}
-        # joint-force attachment
+            if not np.array_equal(
+                inst.slots[self.cb, 0, 0], self.slot0 + 13 * self.nslot * np.arange(len(self.cb))
+            ):
+                raise AssertionError("internal: contact sensors are not contiguous")
+        self.locators = {
+            int(b): _NearestNode(
+                part.centroid[part.nodes_of(b)], part.nodes_of(b), part.tau[part.nodes_of(b)]
+            )
+            for b in self.cb
+        }
         has_anchor = inst.anchor_node >= 0
         self.jf_src, self.jf_dst = np.flatnonzero(has_anchor), inst.anchor_node[has_anchor]
         has_child = inst.child_anchor_node >= 0
         self.jr_src, self.jr_dst = np.flatnonzero(has_child), inst.child_anchor_node[has_child]
 
-    def __call__(self, sd: np.ndarray) -> dict[str, np.ndarray]:
+    def __call__(self, rec: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Records ``[R, F * k, ...]`` -> frames ``[R, F, ...]``."""
+        R_, n = rec["xpos"].shape[:2]
+        out = self.frames(
+            {key: v.reshape((R_ * (n // self.k), self.k) + v.shape[2:]) for key, v in rec.items()}
+        )
+        return {key: v.reshape((R_, n // self.k) + v.shape[1:]) for key, v in out.items()}
+
+    def frames(self, rec: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Records ``[X, k, ...]`` (X frames of k steps each) -> frames ``[X, ...]``."""
         k, nb, N = self.k, self.nb, self.N
-        R_, n, S = sd.shape
-        F = n // k
-        x = sd.reshape(R_ * F, k, S)
-        X = x.shape[0]
-        B = nb - 1
-        blk = _soa(
-            x[:, :, self.b0 : self.b0 + self._BLOCK * B].reshape(X, k, B, self._BLOCK)
-        )  # 25 x [X, k, B]
-        pos_s, quat_s, com_s = blk[0:3], blk[3:7], blk[7:10]
-        fint = _qrot(quat_s, blk[19:22])  # wrench from the parent, world frame
-        tint = _qrot(quat_s, blk[22:25])
-        zero = np.zeros((X, nb, 3))
+        X = rec["xpos"].shape[0]
 
-        def put(dst: np.ndarray, rows, v):  # dst[:, rows] = v (v: 3 x [X, len(rows)])
-            dst[:, rows] = _aos(v)
+        def steps(name):  # [X, k, ...]
+            return rec[name]
 
-        fint_m = zero.copy()
-        put(fint_m, slice(1, None), _mean(fint))
-        tint_m = zero.copy()
-        put(tint_m, slice(1, None), _mean(tint))
-        # joints: wrench from the parent minus what b passes on to its children (about com_b)
-        Jf, Jt = fint_m.copy(), tint_m.copy()
-        if len(self.children):
-            c, p = self.children - 1, self.parents - 1
-            arm = tuple(com_s[i][:, :, c] - com_s[i][:, :, p] for i in range(3))
-            moment = _aos(_mean(_cross(arm, tuple(f[:, :, c] for f in fint))))  # [X, nc, 3]
-            for j in range(len(c)):  # few children: a loop beats np.add.at
-                Jf[:, p[j] + 1] -= fint_m[:, c[j] + 1]
-                Jt[:, p[j] + 1] -= tint_m[:, c[j] + 1] + moment[:, j]
+        def comp(a, i):  # component i of the last axis: [X, k, nb]
+            return a[..., i]
 
-        # actuators on scalar joints: equal and opposite between the joint's body and its parent
-        Fa, Ta = zero.copy(), zero.copy()
-        if len(self.act_body):
-            J = len(self.act_body)
-            tau = x[:, :, self.act0 : self.act0 + J]  # [X, k, J]
-            b, pb = self.act_body, self.act_parent
-            qb = tuple(q[:, :, b - 1] for q in quat_s)
-            axis = _qrot(qb, tuple(self.act_axis.T))
-            gen = tuple(tau * a for a in axis)
-            gm = _aos(_mean(gen))  # [X, J, 3]
+        xipos, sub = steps("xipos"), steps("subtree_com")
+        cint, cext = steps("cfrc_int"), steps("cfrc_ext")
+        # r = c - com: from each body's centre of mass to its tree's reference point
+        r = tuple(np.ascontiguousarray(sub[:, :, self.root, i] - xipos[..., i]) for i in range(3))
+        f_int = tuple(np.ascontiguousarray(cint[..., 3 + i]) for i in range(3))
+        f_ext = tuple(np.ascontiguousarray(cext[..., 3 + i]) for i in range(3))
+
+        # joints: the parent's wrench minus what b passes to its children (about c), per step
+        Jf = [a.copy() for a in f_int]
+        Jt = [np.ascontiguousarray(cint[..., i]) for i in range(3)]
+        for c in self.children:
+            p = self.parent[c]
+            for i in range(3):
+                Jf[i][:, :, p] -= f_int[i][:, :, c]
+                Jt[i][:, :, p] -= cint[:, :, c, i]
+        # about the body's centre of mass: tau + (c - com) x f, then frame means
+        mean = lambda v: _aos(_mean(v))  # noqa: E731  [X, nb, 3]
+        joint_f, joint_t = mean(Jf), mean(_add(Jt, _cross(r, Jf)))
+        if np.any(cext):
+            ext_t = _add(tuple(comp(cext, i) for i in range(3)), _cross(r, f_ext))
+            contact_f, contact_t = mean(f_ext), mean(ext_t)
+        else:  # nothing touched anything in this block
+            contact_f = contact_t = np.zeros((X, nb, 3))
+
+        # actuators on scalar joints: + on the joint's body, - on its parent
+        Fa = np.zeros((X, nb, 3))
+        Ta = np.zeros((X, nb, 3))
+        if len(self.act_joint):
+            tau = steps("qfrc_actuator")[:, :, self.act_dof]  # [X, k, J]
+            axis = steps("xaxis")[:, :, self.act_joint]  # [X, k, J, 3] world
+            gen = tuple(tau * axis[..., i] for i in range(3))
+            gm = mean(gen)
             if self.act_slide.any():
-                anchor = _add(
-                    tuple(pp[:, :, b - 1] for pp in pos_s), _qrot(qb, tuple(self.act_pos.T))
+                anchor = steps("xanchor")[:, :, self.act_joint]
+                arm_b = mean(
+                    _cross(
+                        tuple(anchor[..., i] - xipos[:, :, self.act_body, i] for i in range(3)), gen
+                    )
                 )
-                arm_b = _aos(
-                    _mean(_cross(_sub(anchor, tuple(cc[:, :, b - 1] for cc in com_s)), gen))
+                arm_p = mean(
+                    _cross(
+                        tuple(anchor[..., i] - xipos[:, :, self.act_parent, i] for i in range(3)),
+                        gen,
+                    )
                 )
-                com_p = tuple(
-                    np.where(pb > 0, cc[:, :, np.maximum(pb, 1) - 1], 0.0) for cc in com_s
-                )
-                arm_p = _aos(_mean(_cross(_sub(anchor, com_p), gen)))
-            for j in range(J):
+            for j in range(len(self.act_joint)):
+                b, pb = self.act_body[j], self.act_parent[j]
                 if self.act_slide[j]:
-                    Fa[:, b[j]] += gm[:, j]
-                    Ta[:, b[j]] += arm_b[:, j]
-                    Fa[:, pb[j]] -= gm[:, j]
-                    Ta[:, pb[j]] -= arm_p[:, j]
+                    Fa[:, b] += gm[:, j]
+                    Ta[:, b] += arm_b[:, j]
+                    Fa[:, pb] -= gm[:, j]
+                    Ta[:, pb] -= arm_p[:, j]
                 else:
-                    Ta[:, b[j]] += gm[:, j]
-                    Ta[:, pb[j]] -= gm[:, j]
+                    Ta[:, b] += gm[:, j]
+                    Ta[:, pb] -= gm[:, j]
 
-        # contacts: net wrench per body (the load on b is minus the sensor's), and per node
-        Fc, Tc = zero.copy(), zero.copy()
+        # contact forces per node, from the individual contacts
+        sd = steps("sensordata")
         node_cf = np.zeros((X * N, 3))
         overflow = np.zeros(X, np.int64)
         ncontact = np.zeros(X)
-        if len(self.cb):
+        touched = (
+            np.flatnonzero(np.abs(contact_f[:, self.cb]).sum((0, 2)) > 0)
+            if len(self.cb)
+            else np.zeros(0, int)
+        )
+        if len(touched):
             C = len(self.cb)
-            net = _soa(x[:, :, self.net0 : self.net0 + 10 * C].reshape(X, k, C, 10))
-            f = (-net[1], -net[2], -net[3])
-            cb = self.cb - 1
-            arm = tuple(net[7 + i] - com_s[i][:, :, cb] for i in range(3))
-            t = _add((-net[4], -net[5], -net[6]), _cross(arm, f))
-            Fc[:, self.cb] = _aos(_mean(f))
-            Tc[:, self.cb] = _aos(_mean(t))
-            sl = x[:, :, self.slot0 : self.slot0 + 13 * self.nslot * C].reshape(
+            sl = sd[:, :, self.slot0 : self.slot0 + 13 * self.nslot * C].reshape(
                 X, k, C, self.nslot, 13
-            )
-            found = sl[..., 0, 0]  # [X, k, C] matched contacts per body
+            )[:, :, touched]
+            cb = self.cb[touched]
+            found = sl[..., 0, 0]  # [X, k, C'] matched contacts per body
             overflow = (found > self.nslot).sum((1, 2))
             ncontact = np.minimum(found, self.nslot).sum((1, 2)) / k
             xi, ki, ci, si = np.nonzero(sl[..., 0] > 0)
+            row = _soa(sl[xi, ki, ci, si])  # 13 x [n]
+            nrm, t1 = row[7:10], row[10:13]
+            t2 = _cross(nrm, t1)
+            fb = [-(row[1] * nrm[i] + row[2] * t1[i] + row[3] * t2[i]) for i in range(3)]
+            pw = [row[4 + i] for i in range(3)]
+            over = np.nonzero(found > self.nslot)
+            if len(over[0]):
+                # more contacts than slots: the rest of the body's contact force acts at the
+                # mean of its reported contact points (node forces still sum to the body's)
+                flat = (xi * k + ki) * len(cb) + ci
+                size = X * k * len(cb)
+                cnt = np.bincount(flat, minlength=size).reshape(X, k, -1)[over]
+                rest = [
+                    f_ext[i][:, :, cb][over]
+                    - np.bincount(flat, fb[i], size).reshape(X, k, -1)[over]
+                    for i in range(3)
+                ]
+                at = [
+                    np.bincount(flat, pw[i], size).reshape(X, k, -1)[over] / cnt for i in range(3)
+                ]
+                xi, ki, ci = (
+                    np.concatenate([a, b]) for a, b in zip((xi, ki, ci), over, strict=True)
+                )
+                fb = [np.concatenate([fb[i], rest[i]]) for i in range(3)]
+                pw = [np.concatenate([pw[i], at[i]]) for i in range(3)]
             if len(xi):
-                row = _soa(sl[xi, ki, ci, si])  # 13 x [n]
-                nrm, t1 = row[7:10], row[10:13]
-                t2 = _cross(nrm, t1)
-                fw = tuple(row[1] * nrm[i] + row[2] * t1[i] + row[3] * t2[i] for i in range(3))
                 body = cb[ci]
-                q = tuple(qq[xi, ki, body] for qq in quat_s)
-                local = _aos(
-                    _qrot(
-                        q,
-                        tuple(row[4 + i] - pos_s[i][xi, ki, body] for i in range(3)),
-                        inverse=True,
-                    )
+                xpos, xquat = steps("xpos"), steps("xquat")
+                q = tuple(xquat[xi, ki, body, i] for i in range(4))
+                local = _qrot(
+                    q, tuple(pw[i] - xpos[xi, ki, body, i] for i in range(3)), inverse=True
                 )
                 near = np.empty(len(xi), np.int64)
-                for j, bb in enumerate(self.cb):
+                for j, bb in enumerate(cb):
                     sel = np.flatnonzero(ci == j)
-                    if len(sel) == 0:
-                        continue
-                    nodes = self.body_nodes[int(bb)]
-                    cn = self.node_centroid[nodes]
-                    d = (cn * cn).sum(1)[None, :] - 2 * local[sel] @ cn.T
-                    near[sel] = nodes[np.argmin(d, 1)]
-                np.add.at(node_cf, xi * N + near, -_aos(fw) / k)
+                    if len(sel):
+                        near[sel] = self.locators[int(bb)](tuple(c[sel] for c in local))
+                idx = xi * N + near
+                node_cf = np.stack([np.bincount(idx, fb[i], X * N) for i in range(3)], -1) / k
         node_cf = node_cf.reshape(X, N, 3)
 
+        # joint forces per node: from the parent at b's anchor node, reactions at the parent's
+        fint_m = mean(f_int)
         node_jf = np.zeros((X, N, 3))
         np.add.at(node_jf, (slice(None), self.jf_dst), fint_m[:, self.jf_src])
         np.add.at(node_jf, (slice(None), self.jr_dst), -fint_m[:, self.jr_src])
 
-        # kinematics at the frame (first substep), world row prepended
-        def first(i, fill=0.0):
-            out = np.empty((X, nb))
-            out[:, 0] = fill
-            out[:, 1:] = blk[i][:, 0]
-            return out
-
-        p0 = tuple(first(i) for i in range(0, 3))
-        q0 = (first(3, 1.0),) + tuple(first(i) for i in range(4, 7))
-        c0 = tuple(first(i) for i in range(7, 10))
-        v0 = tuple(first(i) for i in range(10, 13))
-        w0 = tuple(first(i) for i in range(13, 16))
+        # kinematics at the frame (its first step); velocities from cvel at the reference point
+        p0, q0, c0 = steps("xpos")[:, 0], steps("xquat")[:, 0], xipos[:, 0]
+        cv = steps("cvel")[:, 0]  # [X, nb, 6] (angular; linear at c)
+        w0 = cv[..., 0:3]
+        v0 = cv[..., 3:6] + np.cross(w0, c0 - sub[:, 0, self.root])
         nbd = self.node_body
         node_pos = _add(
-            tuple(a[:, nbd] for a in p0), _qrot(tuple(a[:, nbd] for a in q0), self.node_c)
+            tuple(p0[:, nbd, i] for i in range(3)),
+            _qrot(tuple(q0[:, nbd, i] for i in range(4)), self.node_c),
         )
-        node_vel = _add(
-            tuple(a[:, nbd] for a in v0),
-            _cross(tuple(a[:, nbd] for a in w0), _sub(node_pos, tuple(a[:, nbd] for a in c0))),
+        arm = tuple(node_pos[i] - c0[:, nbd, i] for i in range(3))
+        node_vel = _aos(
+            _add(
+                tuple(v0[:, nbd, i] for i in range(3)),
+                _cross(tuple(w0[:, nbd, i] for i in range(3)), arm),
+            )
         )
-
-        def body(group):
-            return _aos(tuple(a[:, 1:] for a in group))
+        node_pos = _aos(node_pos)
+        lin = sd[:, :, self.lin0 : self.lin0 + 3 * (nb - 1)]
+        acc = lin.mean(1).reshape(X, nb - 1, 3) + self.g
 
         out = {
-            "body_pos": body(p0),
-            "body_quat": np.stack([a[:, 1:] for a in q0], -1),
-            "body_com": body(c0),
-            "body_linvel": body(v0),
-            "body_angvel": body(w0),
-            "body_acc": _aos(_mean(blk[16:19])) + self.g,
-            "body_contact_force": Fc[:, 1:],
-            "body_contact_torque": Tc[:, 1:],
+            "body_pos": p0[:, 1:],
+            "body_quat": q0[:, 1:],
+            "body_com": c0[:, 1:],
+            "body_linvel": v0[:, 1:],
+            "body_angvel": w0[:, 1:],
+            "body_acc": acc,
+            "body_contact_force": contact_f[:, 1:],
+            "body_contact_torque": contact_t[:, 1:],
             "body_actuator_force": Fa[:, 1:],
             "body_actuator_torque": Ta[:, 1:],
-            "body_joint_force": (Jf - Fa)[:, 1:],
-            "body_joint_torque": (Jt - Ta)[:, 1:],
-            "node_pos": _aos(node_pos),
-            "node_vel": _aos(node_vel),
+            "body_joint_force": (joint_f - Fa)[:, 1:],
+            "body_joint_torque": (joint_t - Ta)[:, 1:],
+            "node_pos": node_pos,
+            "node_vel": node_vel,
             "node_contact_force": node_cf,
             "node_joint_force": node_jf,
             "contact_count": ncontact,
             "contact_overflow": overflow,
         }
-        return {
-            key: np.ascontiguousarray(v).reshape((R_, F) + v.shape[1:]) for key, v in out.items()
-        }
+        return {key: np.ascontiguousarray(v) for key, v in out.items()}

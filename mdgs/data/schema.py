@@ -154,7 +154,7 @@ FRAME_ARRAYS: tuple[ArraySpec, ...] = (
         ("T", "F"),
         "int64",
         "-",
-        "substeps where a body had more contacts than slots (node contact forces then miss some; body contact loads never do)",
+        "body-substeps with more contacts than slots (the 4 largest act at their nodes, the rest of the net force at the node nearest its centre)",
     ),
 )
 

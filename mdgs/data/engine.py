@@ -3,9 +3,10 @@
 ``simulate(scene, split, ids, seed, n_frames)`` returns the per-frame arrays of
 :data:`mdgs.data.schema.FRAME_ARRAYS` for trajectories ``ids`` of ``split``. A
 trajectory depends only on (scene, seed, split, index): its random generator is
-``SeedSequence([seed, SPLIT_CODE[split], index])``, rollout starts from a zero solver
-warm start at every call, and every reduction is per trajectory, so batches, workers
-and shards never change its bits.
+``SeedSequence([seed, SPLIT_CODE[split], index])``, each simulation of the
+:class:`mujoco.batch.Batch` is stepped on its own (bit-identical at any batch size and
+chunking: the solver's warm start is part of its state), and every reduction is per
+trajectory, so batches, workers and shards never change its bits.
 """
 
 from __future__ import annotations
@@ -15,10 +16,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
+import mujoco.batch
 import numpy as np
-from mujoco import rollout
 
-from mdgs.data.record import FrameReducer, Instrumented, instrument
+from mdgs.data.record import RECORD_FIELDS, FrameReducer, Instrumented, instrument
 from mdgs.partition import PartitionParams
 from mdgs.scenes import SceneSpec
 
@@ -34,6 +35,7 @@ __all__ = [
 
 SPLIT_CODE = {"train": 0, "valid": 1, "test": 2}
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
+_INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 
 
 def rng_for(seed: int, split: str, index: int) -> np.random.Generator:
@@ -78,31 +80,50 @@ def simulate(
     seed: int,
     n_frames: int,
     *,
-    frames_per_call: int = 10,
+    frames_per_call: int = 4,
+    reduce_every: int = 10,
 ) -> dict[str, np.ndarray]:
-    """Per-frame arrays ``[len(ids), n_frames, ...]`` (see :mod:`mdgs.data.schema`)."""
+    """Per-frame arrays ``[len(ids), n_frames, ...]`` (see :mod:`mdgs.data.schema`).
+
+    The batch is stepped ``frames_per_call`` frames at a time (one frame at a time for
+    closed-loop controllers, which read the state at each frame), on one thread.
+    """
     spec, m = scene.spec, scene.inst.model
     R, k = len(ids), spec.substeps
     rngs = [rng_for(seed, split, i) for i in ids]
-    nstate = mujoco.mj_stateSize(m, _STATE)
     sl = _state_slices(m)
+    nstate = mujoco.mj_stateSize(m, _STATE)
     data = mujoco.MjData(m)
+    batch = mujoco.batch.Batch(m, nsim=R, nthread=1)
     state = np.empty((R, nstate))
     for r, rng in enumerate(rngs):
         mujoco.mj_resetData(m, data)
         spec.builder.initial_state(m, data, rng)
+        mujoco.mj_getState(m, data, batch.state[r], _INTEGRATION)
         mujoco.mj_getState(m, data, state[r], _STATE)
     ctrl = spec.builder.controller(m, rngs, n_frames, state[:, sl["qpos"]].copy())
     fpc = 1 if ctrl.closed_loop else max(1, frames_per_call)
+    # open loop: reduce each call's records in place; closed loop (one frame per call):
+    # frames are recorded straight into a block, numpy's per-call cost is paid per block
+    reduce_frames = max(1, reduce_every)
     reduce = FrameReducer(scene.inst, k)
-    datas = [mujoco.MjData(m)]
-    warm = np.zeros((R, m.nv))
+    record = (*RECORD_FIELDS, int(_STATE))
     out: dict[str, np.ndarray] = {}
     frames = np.empty((R, n_frames, nstate))
     ctrls = np.empty((R, n_frames, m.nu))
-    pending: list[np.ndarray] = []
-    pending_start = 0
-    reduce_frames = max(fpc, frames_per_call)
+
+    def store(red: dict, f0: int, f1: int, frame_major: bool) -> None:
+        for key, v in red.items():
+            if key not in out:
+                out[key] = np.empty((R, n_frames) + v.shape[1:], v.dtype)
+            if frame_major:  # rows ordered (frame, trajectory)
+                out[key][:, f0:f1] = np.swapaxes(v.reshape((f1 - f0, R) + v.shape[1:]), 0, 1)
+            else:  # rows ordered (trajectory, frame)
+                out[key][:, f0:f1] = v.reshape((R, f1 - f0) + v.shape[1:])
+
+    bufs: dict | None = None
+    block: dict | None = None  # closed loop: [frames, R, k, ...] so that each frame is contiguous
+    block_start = 0
     for f0 in range(0, n_frames, fpc):
         f1 = min(n_frames, f0 + fpc)
         nf = f1 - f0
@@ -111,21 +132,47 @@ def simulate(
         else:
             u = ctrl.block(f0, f1)
         ctrls[:, f0:f1] = u
-        control = np.ascontiguousarray(np.repeat(u, k, axis=1)) if m.nu else None
-        st, sd = rollout.rollout(m, datas, state, control, nstep=nf * k, initial_warmstart=warm)
+        control = np.repeat(u, k, axis=1) if m.nu else None
         frames[:, f0] = state
-        if nf > 1:
-            frames[:, f0 + 1 : f1] = st[:, k - 1 : (nf - 1) * k : k]
-        pending.append(sd)
-        if f1 - pending_start >= reduce_frames or f1 == n_frames:
-            # reduce several frames at once: numpy's per-call cost is paid once per block
-            red = reduce(pending[0] if len(pending) == 1 else np.concatenate(pending, axis=1))
-            for key, v in red.items():
-                if key not in out:
-                    out[key] = np.empty((R, n_frames) + v.shape[2:], v.dtype)
-                out[key][:, pending_start:f1] = v
-            pending, pending_start = [], f1
-        state = np.ascontiguousarray(st[:, -1])
+        if ctrl.closed_loop:
+            j = f0 - block_start
+            rec = batch.rollout(
+                k,
+                control=control,
+                record=record,
+                out=None if block is None else {key: v[j] for key, v in block.items()},
+            )
+            if block is None:
+                block = {
+                    key: np.empty((reduce_frames,) + v.shape, v.dtype) for key, v in rec.items()
+                }
+                for key, v in rec.items():
+                    block[key][0] = v
+            state = rec[int(_STATE)][:, -1].copy()
+            if j + 1 == reduce_frames or f1 == n_frames:
+                rows = j + 1
+                red = reduce.frames(
+                    {key: v[:rows].reshape((rows * R,) + v.shape[2:]) for key, v in block.items()}
+                )
+                store(red, block_start, f1, frame_major=True)
+                block_start = f1
+        else:
+            reuse = bufs if (bufs is not None and nf == fpc) else None
+            rec = batch.rollout(nf * k, control=control, record=record, out=reuse)
+            if nf == fpc:
+                bufs = rec  # output buffers reused by every full-size call (no page faults)
+            st = rec[int(_STATE)]
+            if nf > 1:
+                frames[:, f0 + 1 : f1] = st[:, k - 1 : (nf - 1) * k : k]
+            state = st[:, -1].copy()
+            store(
+                reduce.frames(
+                    {key: v.reshape((R * nf, k) + v.shape[2:]) for key, v in rec.items()}
+                ),
+                f0,
+                f1,
+                frame_major=False,
+            )
     out["time"] = frames[:, :, sl["time"]][..., 0]
     out["qpos"] = frames[:, :, sl["qpos"]]
     out["qvel"] = frames[:, :, sl["qvel"]]
