@@ -69,7 +69,10 @@ class Mjcf:
         )
         ET.SubElement(self.root, "size", memory="20M")
         vis = ET.SubElement(self.root, "visual")
-        ET.SubElement(vis, "headlight", ambient="0.35 0.35 0.35", diffuse="0.6 0.6 0.6")
+        ET.SubElement(
+            vis, "headlight", ambient="0.3 0.3 0.3", diffuse="0.4 0.4 0.4", specular="0 0 0"
+        )
+        ET.SubElement(vis, "map", znear="0.01", zfar="30")
         asset = ET.SubElement(self.root, "asset")
         ET.SubElement(
             asset,
@@ -91,7 +94,14 @@ class Mjcf:
             default, "geom", friction=fmt(friction), solref="0.01 1", solimp="0.95 0.99 0.001"
         )
         self.world = ET.SubElement(self.root, "worldbody")
-        ET.SubElement(self.world, "light", pos="0 0 4", dir="0 0 -1", directional="true")
+        ET.SubElement(
+            self.world,
+            "light",
+            pos="1 -1 4",
+            dir="-0.2 0.2 -1",
+            directional="true",
+            diffuse="0.5 0.5 0.5",
+        )
         if floor:
             ET.SubElement(
                 self.world, "geom", name="floor", type="plane", size="20 20 0.1", material="floor"
