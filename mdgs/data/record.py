@@ -51,8 +51,9 @@ __all__ = [
 
 CONTACT_SLOTS = 4
 """Individual contacts reported per body and step (the largest by force). When a body has
-more, the rest of its net contact force is put on the node nearest the net force's
-centre, so node contact forces always sum to the body's (``contact_overflow`` counts it)."""
+more, the rest of its contact force (``cfrc_ext``) is put on the node nearest the mean of
+the reported contact points, so node contact forces always sum to the body's
+(``contact_overflow`` counts it)."""
 
 _S = mujoco.mjtSensor
 _O = mujoco.mjtObj

@@ -154,7 +154,7 @@ FRAME_ARRAYS: tuple[ArraySpec, ...] = (
         ("T", "F"),
         "int64",
         "-",
-        "body-substeps with more contacts than slots (the 4 largest act at their nodes, the rest of the net force at the node nearest its centre)",
+        "body-substeps with more contacts than slots (the 4 largest act at their nodes, the rest of the body's contact force at the node nearest their mean point)",
     ),
 )
 
@@ -261,3 +261,13 @@ def markdown_table(specs: tuple[ArraySpec, ...]) -> str:
     rows = ["| name | shape | unit | meaning |", "|---|---|---|---|"]
     rows += [f"| `{s.name}` | `[{', '.join(s.shape)}]` | {s.unit} | {s.doc} |" for s in specs]
     return "\n".join(rows)
+
+
+if __name__ == "__main__":  # the tables of docs/scenes.md
+    print("### /frames\n")
+    print(markdown_table(FRAME_ARRAYS))
+    print("\n### /static\n")
+    print(markdown_table(STATIC_ARRAYS))
+    print("\n### Root attributes\n")
+    print("| attribute | meaning |\n|---|---|")
+    print("\n".join(f"| `{k}` | {v} |" for k, v in ROOT_ATTRS.items()))

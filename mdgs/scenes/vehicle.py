@@ -122,9 +122,9 @@ class Vehicle:
                 doc.el(
                     parent,
                     "geom",
-                    name=f"knuckle_{tag}",
-                    type="sphere",
-                    size=0.03,
+                    name=f"knuckle_{tag}",  # the kingpin: a short steel capsule, no collisions
+                    type="capsule",
+                    size=(0.015, 0.03),
                     density=7800.0,
                     contype=0,
                     conaffinity=0,
