@@ -111,7 +111,7 @@ def _claims() -> dict[str, Claim]:
                              sp.Eq(sp.Symbol(r"\vec{\omega}_{i,\gamma}"), 0))),
         Claim("eq11", "Theorem 3.1", "sum_i F_{gamma,i} - sum_i M_i (v_gamma^{t+1} - v_gamma^t)/delta + Psi = 0 for every independent speed gamma.", "(11)",
               _eq11_expr, "eq11.corrected"),
-        Claim("eq11.corrected", "Theorem 3.1, translational", "For translational speeds Psi = 0 and sum_i F_{gamma,i} = sum_i M_i (v^{t+1}-v^t)_gamma/delta exactly on Euler-integrated data (O(delta) otherwise); for other speeds only Kane's form with partial velocities holds.", "(11)*",
+        Claim("eq11.corrected", "Theorem 3.1, translational", "For translational speeds Psi = 0 and sum_i F_{gamma,i} = sum_i M_i a_{gamma,i} exactly; with finite differences (v^{t+1}-v^t)/delta it is exact only for a single free rigid body on Euler-integrated data (O(delta) for multibody systems or other integrators); for rotational speeds only Kane's form with partial velocities holds.", "(11)*",
               lambda: _eq11_expr(True)),
         Claim("eq30", "Psi proportional to radii", "Psi is proportional to sum_i sum_l |r_{i,l}|.", "(30)",
               lambda: _psi_scaling(False), "eq30.corrected"),
