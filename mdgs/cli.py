@@ -47,6 +47,9 @@ def _human(nbytes: float) -> str:
 
 def register(app: typer.Typer) -> None:
     """Add the simulator's sub-commands to ``app``."""
+    from mdgs.train import register as register_train  # train, evaluate
+
+    register_train(app)
 
     @app.command()
     def generate(

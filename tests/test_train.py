@@ -1,0 +1,167 @@
+"""End-to-end training and evaluation on a tiny cubli-triple dataset (mdgs.train, mdgs.evaluate).
+
+One module-scoped dataset and run keep the whole file well under a minute on two CPU cores.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from mdgs.data.generate import GenerateConfig, generate
+from mdgs.evaluate import DIVERGENCE_FACTOR, evaluate
+from mdgs.model import ModelConfig
+from mdgs.train import TrainConfig, control_map, load_split, noise_sigmas, train
+from validation.cli import app
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cubli")
+    generate(GenerateConfig(scene="cubli-triple", out=str(out), preset="tiny"))
+    return out
+
+
+def _cfg(data, out, **kw) -> TrainConfig:
+    # tiny preset: 2 training trajectories x 109 pairs -> 13 steps of 16 graphs per epoch
+    base = dict(data=str(data), out=str(out), epochs=8, batch_size=16, max_steps=0, valid_max_pairs=64,
+                log_every=1, device="cpu", model=ModelConfig())
+    return TrainConfig(**{**base, **kw})
+
+
+@pytest.fixture(scope="module")
+def run(data, tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    train(_cfg(data, out))
+    return out
+
+
+def test_controls_map_to_driven_body_and_parent(data):
+    d = load_split(data / "train.h5")
+    nb = np.asarray(d.static["node_body"])
+    # cubli-triple: body 1 is the cube, bodies 2-4 the wheels driven by motors x, y, z
+    sign = control_map(open_mjcf(data), nb)
+    assert sign.shape == (3, len(nb))
+    for k, wheel in enumerate((2, 3, 4)):
+        assert (sign[k, nb == wheel] == 1).all()
+        assert (sign[k, nb == 1] == -1).all()  # reaction on the cube
+        assert (sign[k, (nb != wheel) & (nb != 1)] == 0).all()
+    ctrl = _ctrl(data)
+    np.testing.assert_allclose(d.control[..., nb == 2, 0], np.repeat(ctrl[..., 0:1], (nb == 2).sum(), -1), rtol=1e-6)
+
+
+def open_mjcf(data) -> str:
+    from mdgs.data.io import open_dataset
+
+    with open_dataset(data / "train.h5") as ds:
+        return ds.mjcf
+
+
+def _ctrl(data):
+    from mdgs.data.io import open_dataset
+
+    with open_dataset(data / "train.h5") as ds:
+        return ds.frames("ctrl")
+
+
+def test_noise_is_paper_absolute_for_cubli_and_increment_fraction_otherwise(data):
+    d = load_split(data / "train.h5")
+    assert noise_sigmas("auto", d) == (4e-4, 4e-4)  # B.2, Cubli
+    sx, sv = noise_sigmas("inc:0.06", d)
+    dx = (d.x[:, 1:] - d.x[:, :-1])[:, :, d.moving]
+    assert sx == pytest.approx(0.06 * dx.std(), rel=1e-6)
+    assert sx < 0.1 * d.x[:, :, d.moving].std()  # a fraction of a step, not of the spread of states
+
+
+def test_training_loss_falls_and_outputs(run):
+    steps = json.loads((run / "steps.json").read_text())
+    first = np.mean([s["l_mse"] for s in steps[:10]])
+    last = np.mean([s["l_mse"] for s in steps[-10:]])
+    assert last < 0.7 * first, (first, last)
+    hist = json.loads((run / "metrics.json").read_text())
+    assert [h["epoch"] for h in hist] == list(range(8))
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["model"]["control_dim"] == 3 and cfg["noise_sigma_x_m"] == 4e-4
+    assert cfg["data_identity"]["scene"] == "cubli-triple"
+
+
+def test_resume_continues_like_an_uninterrupted_run(data, run, tmp_path):
+    train(_cfg(data, tmp_path, epochs=4))
+    assert len(json.loads((tmp_path / "metrics.json").read_text())) == 4
+    train(_cfg(data, tmp_path, epochs=8))  # resumes at epoch 5
+    a = torch.load(run / "checkpoint.pt", weights_only=False)
+    b = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    assert b["epoch"] == 7 and len(b["history"]) == 8
+    for k in a["model"]:
+        torch.testing.assert_close(a["model"][k], b["model"][k], rtol=1e-4, atol=1e-5)
+
+
+def test_evaluate_writes_report_and_plots(data, run, tmp_path):
+    path = tmp_path / "report.json"
+    res = runner.invoke(app, ["evaluate", str(run), str(run), "--data", str(data), "--json", str(path)])
+    assert res.exit_code == 0, res.output
+    rep = json.loads(path.read_text())
+    r = rep["runs"][0]
+    for t in (40, 110):  # a tiny overfit model may diverge: then the value is None and the step is reported
+        v = rep[f"mse_t{t}"]
+        if r[f"mse_t{t}_trajectories"]:
+            assert np.isfinite(v) and v >= 0
+        else:
+            assert v is None and r["diverged"] and rep["status"] == "diverged"
+    assert len(r["rollout_mse_curve"]) == r["frames"] == 110
+    assert r["mse_t110_frame"] == 109 and r["mse_t40_frame"] == 39
+    assert rep["aggregate"]["runs"] == 2 and rep["aggregate"]["one_step_mse_scaled"]["std"] == pytest.approx(0, abs=1e-9)
+    for p in rep["plots"].values():
+        assert (tmp_path / p.split("/")[-1]).stat().st_size > 1000
+
+
+def test_divergence_is_detected_not_averaged(data, run, tmp_path, monkeypatch):
+    import mdgs.evaluate as ev
+
+    monkeypatch.setattr(ev, "DIVERGENCE_FACTOR", 0.0)  # every step counts as diverged
+    rep = evaluate([run], data, json_path=tmp_path / "r.json", device="cpu")
+    assert rep["status"] == "diverged" and rep["mse_t40"] is None
+    assert {d["step"] for d in rep["runs"][0]["diverged"]} == {1}
+    assert DIVERGENCE_FACTOR == 100.0
+
+
+def test_mismatched_checkpoint_exits_2(data, run, tmp_path):
+    # a run with another model configuration in the same folder
+    res = runner.invoke(app, ["train", "--data", str(data), "--out", str(run), "--model", "mdgs-nc",
+                              "--epochs", "3", "--max-steps", "1"])
+    assert res.exit_code == 2, res.output
+    assert "other settings" in res.output and "Traceback" not in res.output
+    # a run evaluated on another scene
+    other = tmp_path / "single"
+    generate(GenerateConfig(scene="cubli-single", out=str(other), preset="tiny"))
+    res = runner.invoke(app, ["evaluate", str(run), "--data", str(other)])
+    assert res.exit_code == 2 and "was trained on scene 'cubli-triple'" in res.output, res.output
+
+
+@pytest.mark.parametrize("bad", ["missing", "corrupt", "nan"])
+def test_bad_data_exits_2(data, tmp_path, bad):
+    import shutil
+
+    d = tmp_path / "d"
+    if bad != "missing":
+        shutil.copytree(data, d)
+    if bad == "corrupt":
+        (d / "train.h5").write_bytes(b"not an hdf5 file")
+    if bad == "nan":
+        import h5py
+
+        with h5py.File(d / "train.h5", "r+") as f:
+            del f["frames/node_pos"]
+            x = np.asarray(h5py.File(data / "train.h5", "r")["frames/node_pos"])
+            x[0, 5, 0, 0] = np.nan
+            f["frames"].create_dataset("node_pos", data=x)
+    res = runner.invoke(app, ["train", "--data", str(d), "--out", str(tmp_path / "r"), "--epochs", "1"])
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output and str(d) in res.output
+    assert {"missing": "does not exist", "corrupt": "not a readable HDF5", "nan": "NaN"}[bad] in res.output
