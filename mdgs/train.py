@@ -417,10 +417,10 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None,
                "valid_mse": val, "lr": opt.param_groups[0]["lr"], "steps": n_steps,
                "train_seconds": train_s, "seconds": time.perf_counter() - t0}
         history.append(rec)
-        _atomic_write(ckpt_path, lambda p: torch.save(  # noqa: B023
-            {"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "epoch": epoch,
-             "config": resolved, "train_fingerprint": _train_fingerprint(cfg), "data_identity": tr.identity(),
-             "has_contact": tr.has_contact, "history": history, "steps": steps_log}, p))
+        ckpt = {"model": model.state_dict(), "opt": opt.state_dict(), "sched": sched.state_dict(), "epoch": epoch,
+                "config": resolved, "train_fingerprint": _train_fingerprint(cfg), "data_identity": tr.identity(),
+                "has_contact": tr.has_contact, "history": history, "steps": steps_log}
+        _atomic_write(ckpt_path, lambda p, ckpt=ckpt: torch.save(ckpt, p))
         atomic_json(history, out / "metrics.json")
         atomic_json(steps_log, out / "steps.json")
         progress({"kind": "epoch", **rec})
@@ -501,7 +501,14 @@ def register(app) -> None:
 
 def _train_with_progress(cfg: TrainConfig) -> dict:
     from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
 
     console = Console(stderr=True)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[loss]}"),
@@ -519,12 +526,12 @@ def _train_with_progress(cfg: TrainConfig) -> dict:
                 desc = f"epoch {e['epoch'] + 1}"
                 if task is None:
                     task = bar.add_task(desc, total=e["steps"], loss="")
+                elif e["step"] == 1:
+                    bar.reset(task)
                 bar.update(task, description=desc, completed=e["step"], total=e["steps"],
                            loss=f"loss {e['loss']:.4g} (mse {e['l_mse']:.3g}, cst {e['l_cst']:.3g})")
             elif e["kind"] == "epoch":
                 console.print(f"epoch {e['epoch'] + 1}: train L_mse {e['train_mse']:.4g}, L_cst {e['train_cst']:.4g}, "
                               f"valid MSE {e['valid_mse']:.4g}, lr {e['lr']:.3g}, {e['seconds']:.1f} s")
-                if task is not None:
-                    bar.reset(task)
 
         return train(cfg, progress=on)
