@@ -145,9 +145,9 @@ def evaluate_run(run: str | os.PathLike, d: SplitData, dev, batch_size: int = 64
         rep[f"mse_t{t}_trajectories"] = int(np.isfinite(r.pos_mse[:, f]).sum())
     with np.errstate(invalid="ignore"):
         n_ok = np.isfinite(r.pos_mse).sum(0)
-        rep["rollout_mse_curve"] = [None if n == 0 else float(np.nanmean(c)) for n, c in zip(n_ok, r.pos_mse.T)]
+        rep["rollout_mse_curve"] = [None if n == 0 else float(np.nanmean(c)) for n, c in zip(n_ok, r.pos_mse.T, strict=True)]
         rep["rollout_mse_curve_velocity"] = [None if n == 0 else float(np.nanmean(c))
-                                             for n, c in zip(n_ok, r.vel_mse.T)]
+                                             for n, c in zip(n_ok, r.vel_mse.T, strict=True)]
     rep["rollout_mse_curve_trajectories"] = n_ok.astype(int).tolist()
     rep["status"] = "diverged" if rep["diverged"] else "ok"
     return rep, r
@@ -193,7 +193,7 @@ def _plots(reports: list[dict], rollouts: list[Rollout], d: SplitData, stem: Pat
     else:
         ax.text(0.5, 0.5, "every trajectory diverged at step 1", transform=ax.transAxes, ha="center")
     ax.set_xlabel("time step t (t = 1: given first frame)")
-    ax.set_ylabel("position MSE (m$^2$), moving nodes")
+    ax.set_ylabel("position MSE (m$^2$), moving nodes\nmean over trajectories not yet diverged")
     ax.set_title(f"rollout MSE, {reports[0]['scene']}, {reports[0]['trajectories']} test trajectories")
     ax.legend()
     fig.tight_layout()
@@ -314,8 +314,13 @@ def register(app) -> None:
                 return "n/a (diverged)"
             return f"{m['mean']:.4g}" + (f" +- {m['std']:.2g}" if agg["runs"] > 1 else "")
 
-        typer.echo(f"{rep['runs'][0]['scene']} {split}: position MSE t=40 {fmt('mse_t40')} m^2, "
-                   f"t=110 {fmt('mse_t110')} m^2 ({agg['runs']} run(s)); report {rep['json']}")
+        r0 = rep["runs"][0]
+
+        def n_used(t: int) -> str:
+            return f"{sum(r[f'mse_t{t}_trajectories'] for r in rep['runs'])}/{sum(r['trajectories'] for r in rep['runs'])}"
+
+        typer.echo(f"{r0['scene']} {split}: position MSE t=40 {fmt('mse_t40')} m^2 ({n_used(40)} trajectories), "
+                   f"t=110 {fmt('mse_t110')} m^2 ({n_used(110)}); {agg['runs']} run(s); report {rep['json']}")
         for r in rep["runs"]:
             for dv in r["diverged"]:
                 typer.echo(f"warning: {r['run']}: test trajectory {dv['trajectory']} diverged at step {dv['step']} "
