@@ -47,7 +47,8 @@ def _human(nbytes: float) -> str:
 
 def register(app: typer.Typer) -> None:
     """Add the simulator's sub-commands to ``app``."""
-    from mdgs.train import register as register_train  # train, evaluate
+    # train, evaluate: torch is imported only when they run
+    from mdgs.commands import register as register_train
 
     register_train(app)
 

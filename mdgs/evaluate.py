@@ -21,6 +21,7 @@ Plots use matplotlib's Agg backend; the JSON report is written atomically.
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,7 +33,7 @@ from mdgs.graphs import SceneGraph
 from mdgs.model import MDGS
 from mdgs.train import RunError, SplitData, _device, atomic_json, load_run, load_split, one_step_mse
 
-__all__ = ["DIVERGENCE_FACTOR", "Rollout", "rollout", "evaluate_run", "evaluate", "register"]
+__all__ = ["DIVERGENCE_FACTOR", "Rollout", "rollout", "evaluate_run", "evaluate"]
 
 #: A trajectory diverges when its position MSE exceeds this factor times the split's position variance.
 DIVERGENCE_FACTOR = 100.0
@@ -176,11 +177,13 @@ def _plots(reports: list[dict], rollouts: list[Rollout], d: SplitData, stem: Pat
     steps = np.arange(F)
     curves = np.array([[np.nan if c is None else c for c in r["rollout_mse_curve"]] for r in reports], float)
     fig, ax = plt.subplots(figsize=(6, 4))
-    mean = np.nanmean(curves, 0) if len(curves) > 1 else curves[0]
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # steps where every run has diverged stay NaN
+        mean = np.nanmean(curves, 0) if len(curves) > 1 else curves[0]
+        sd = np.nanstd(curves, 0, ddof=1) if len(curves) > 1 else None
     label = reports[0]["model"] + (f" (mean of {len(reports)} runs)" if len(reports) > 1 else "")
     ax.plot(steps[1:] + 1, mean[1:], label=label)
-    if len(curves) > 1:
-        sd = np.nanstd(curves, 0, ddof=1)
+    if sd is not None:
         ax.fill_between(steps[1:] + 1, (mean - sd)[1:], (mean + sd)[1:], alpha=0.3, label="+- 1 std over runs")
     for r in reports:
         for dv in r["diverged"]:
@@ -282,46 +285,3 @@ def evaluate(runs: list[str | os.PathLike], data: str | os.PathLike, split: str 
     atomic_json(report, json_path)
     report["json"] = str(json_path)
     return report
-
-
-def register(app) -> None:
-    """Add the ``evaluate`` command to the typer ``app``."""
-    import typer
-
-    @app.command("evaluate")
-    def evaluate_cmd(
-        runs: list[Path] = typer.Argument(..., help="Run folder(s) from `mdgs train`; several (seeds) give mean +- std."),
-        data: Path = typer.Option(..., "--data", help="Dataset folder (`mdgs generate` output)."),
-        split: str = typer.Option("test", "--split", help="test, valid or train."),
-        json_path: Path = typer.Option(None, "--json", help="Report path (default RUN/evaluation-SPLIT.json)."),
-        traj: int = typer.Option(0, "--traj", help="Test trajectory drawn in the trajectory plot."),
-        device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),
-    ) -> None:
-        """Roll out whole test trajectories; rollout MSE at t=40 and t=110 (m^2), curves and plots."""
-        from mdgs.cli import _fail
-
-        if split not in ("train", "valid", "test"):
-            _fail(f"--split {split} is not one of train, valid, test")
-        try:
-            rep = evaluate([str(r) for r in runs], data, split, json_path, device, traj)
-        except (DatasetError, RunError) as e:
-            _fail(str(e))
-        agg = rep["aggregate"]
-
-        def fmt(key: str) -> str:
-            m = agg[key]
-            if m["mean"] is None:
-                return "n/a (diverged)"
-            return f"{m['mean']:.4g}" + (f" +- {m['std']:.2g}" if agg["runs"] > 1 else "")
-
-        r0 = rep["runs"][0]
-
-        def n_used(t: int) -> str:
-            return f"{sum(r[f'mse_t{t}_trajectories'] for r in rep['runs'])}/{sum(r['trajectories'] for r in rep['runs'])}"
-
-        typer.echo(f"{r0['scene']} {split}: position MSE t=40 {fmt('mse_t40')} m^2 ({n_used(40)} trajectories), "
-                   f"t=110 {fmt('mse_t110')} m^2 ({n_used(110)}); {agg['runs']} run(s); report {rep['json']}")
-        for r in rep["runs"]:
-            for dv in r["diverged"]:
-                typer.echo(f"warning: {r['run']}: test trajectory {dv['trajectory']} diverged at step {dv['step']} "
-                           f"(t = {dv['time_s']:.3g} s) and is left out of the means from there on", err=True)

@@ -48,7 +48,6 @@ __all__ = [
     "noise_sigmas",
     "train",
     "load_run",
-    "register",
 ]
 
 #: Training noise of Appendix B.2: absolute sigma (m, m/s) for Cubli scenes.
@@ -445,58 +444,6 @@ def load_run(run: str | os.PathLike, dev) -> tuple[MDGS, dict]:
                        "version); retrain the run with `mdgs train`") from None
     model.eval()
     return model, state
-
-
-def register(app) -> None:
-    """Add ``train`` and ``evaluate`` commands to the typer ``app``."""
-    import typer
-
-    from mdgs.evaluate import register as register_evaluate
-
-    @app.command("train")
-    def train_cmd(
-        data: Path = typer.Option(..., "--data", help="Folder with train.h5 and valid.h5 (`mdgs generate` output)."),
-        out: Path = typer.Option(..., "--out", help="Run folder; rerunning the same command resumes it."),
-        model: str = typer.Option("mdgs", "--model", help="mdgs, mdgs-nc (no L_cst) or mdgs-sc (single speed)."),
-        structure: bool = typer.Option(True, "--structure/--no-structure", help="Structural constraint module (B.1.3)."),
-        bound: str = typer.Option("paper", "--bound", help="Bound of L_cst: paper (Eq. 12) or corrected."),
-        epochs: int = typer.Option(20, "--epochs", help="Total epochs (a resumed run stops at this count)."),
-        batch_size: int = typer.Option(32, "--batch-size", help="Graphs per step."),
-        lr: float = typer.Option(1e-3, "--lr", help="Adam learning rate (B.2)."),
-        noise: str = typer.Option("auto", "--noise", help="auto, none, abs:SIGMA or inc:FRACTION (see docs/training.md)."),
-        seed: int = typer.Option(0, "--seed", help="Seed of initialisation, batch order and noise."),
-        max_steps: int = typer.Option(0, "--max-steps", help="Cap on steps per epoch (0: full pass)."),
-        valid_max_pairs: int = typer.Option(0, "--valid-max-pairs", help="Cap on validation pairs (0: all)."),
-        device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),
-    ) -> None:
-        """Train MDGS on a generated dataset (Adam, plateau scheduler, training noise; Appendix B.2)."""
-        from mdgs.cli import _fail
-
-        try:
-            mcfg = ModelConfig(variant=model, structure=structure, bound=bound)
-        except ValueError as e:
-            _fail(f"--model/--bound: {e}")
-        for name, val in (("--epochs", epochs), ("--batch-size", batch_size)):
-            if val < 1:
-                _fail(f"{name} {val} must be at least 1")
-        if not lr > 0:
-            _fail(f"--lr {lr} must be positive")
-        cfg = TrainConfig(data=str(data), out=str(out), epochs=epochs, batch_size=batch_size, lr=lr, noise=noise,
-                          seed=seed, max_steps=max_steps, valid_max_pairs=valid_max_pairs, device=device, model=mcfg)
-        try:
-            last = _train_with_progress(cfg)
-        except (DatasetError, RunError) as e:
-            _fail(str(e))
-        except KeyboardInterrupt:
-            typer.echo(f"interrupted; rerun the same command to resume {out} from its last finished epoch", err=True)
-            raise typer.Exit(130) from None
-        if last:
-            typer.echo(f"{out}: epoch {last['epoch'] + 1}/{epochs}, train L_mse {last['train_mse']:.4g}, "
-                       f"L_cst {last['train_cst']:.4g}, valid one-step MSE {last['valid_mse']:.4g}")
-        else:
-            typer.echo(f"{out}: already trained for {epochs} epochs; raise --epochs to continue")
-
-    register_evaluate(app)
 
 
 def _train_with_progress(cfg: TrainConfig) -> dict:

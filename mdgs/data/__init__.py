@@ -8,11 +8,11 @@ Public API:
 - :func:`load_scene`, :func:`simulate` (trajectories in memory, no files).
 """
 
+from mdgs.data.engine import load_scene, simulate
 from mdgs.data.generate import GenerateConfig, GenerateResult, generate
 from mdgs.data.io import Dataset, open_dataset
 from mdgs.data.presets import PRESETS, Preset
 from mdgs.data.schema import FRAME_ARRAYS, SCHEMA_VERSION, STATIC_ARRAYS, DatasetError
-from mdgs.data.engine import load_scene, simulate
 
 __all__ = [
     "GenerateConfig",

@@ -25,10 +25,10 @@ from pathlib import Path
 
 import h5py
 
+from mdgs.data.engine import LoadedScene, load_scene, scene_attrs, simulate, static_arrays
 from mdgs.data.io import atomic_path, merge_files, open_dataset, sha256_text, write_file
 from mdgs.data.presets import PRESETS, split_counts
 from mdgs.data.schema import SCHEMA_VERSION, DatasetError
-from mdgs.data.engine import LoadedScene, load_scene, scene_attrs, simulate, static_arrays
 from mdgs.partition import PartitionParams
 from mdgs.scenes import SceneSpec, get_scene, user_scene
 
