@@ -49,7 +49,6 @@ def _report() -> dict:
             _state["source"] = f"`mdgs validate --json` report `{os.path.basename(path)}`"
         else:
             from kane.claims import run_checks
-
             from validation.report import build_report
 
             t0 = time.perf_counter()

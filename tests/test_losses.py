@@ -13,7 +13,6 @@ from kane.mjscene import BoxBodySpec, simulate_elements
 from kane.terms import loss_functions
 from mdgs.losses import angular_rate, constraint_loss, constraint_sums, mse_loss, speeds_of
 
-
 _SPECS = {
     "free": BoxBodySpec(divisions=(2, 2, 2), omega0=(1.0, 2.0, 3.0), v0=(0.3, -0.1, 0.5)),
     "floor": BoxBodySpec(divisions=(2, 2, 2), floor=True, height=0.12, omega0=(0.5, 1.0, 0.2), v0=(0.3, 0.0, -0.5)),
