@@ -416,8 +416,8 @@ def _traj(case: str, integrator: str = "Euler", steps: int = 600):
 
 def _eq11_residuals(tr, translational: bool):
     """Eq. (11) residual per frame and speed (world axes), relative to the force scale."""
-    dv = (tr.v[1:] - tr.v[:-1]) / tr.dt  # [T-1, n, 3]
-    S = tr.force[:-1].sum(1) - (tr.mass[None, :, None] * dv).sum(1)  # sum_i F_gamma,i - M_i dv/delta
+    eq11_term = terms.loss_functions("numpy")["eq11_term"][1]  # F_{gamma,i} u - M_i (v' - v) u / delta
+    S = eq11_term(tr.force[:-1], tr.mass[None, :, None], tr.v[1:], tr.v[:-1], tr.dt, 1.0).sum(1)  # [T-1, 3]
     scale = np.abs(tr.force[:-1]).sum((1, 2)).max() + 1e-300
     if translational:
         return np.abs(S) / scale  # Psi = 0: omega_{i,gamma} = 0
@@ -509,11 +509,12 @@ def _eq12_traj(corrected: bool, internal: bool = False):
         force = tr.force + (tr.internal_force if internal else 0.0)
         psi = (moment - Ls).sum(1)  # [T, 3]: rotational speeds about x, y, z (omega_{i,gamma} = e_gamma)
         a = np.linalg.norm(tr.alpha, axis=1)[:, None]
+        f = terms.loss_functions("numpy")  # the bounds of Eq. (12) and its corrected form, one source
         if corrected:
             wabs = np.linalg.norm(tr.omega, axis=1)[:, None]
-            rhs = (tr.tau[None] * tr.force_abs + tr.mass[None] * tr.tau[None] ** 2 * (a + wabs**2 / 2)).sum(1)
-        else:
-            rhs = (tr.tau[None] * np.linalg.norm(force, axis=2) + 0.4 * tr.mass[None] * tr.tau[None] ** 2 * a).sum(1)
+            rhs = f["corrected_bound_term"][1](1.0, tr.tau[None], tr.force_abs, tr.mass[None], a, wabs).sum(1)
+        else:  # omega_gamma = |omega_{i,gamma}| = 1 for a rotational speed
+            rhs = f["paper_bound_term"][1](tr.tau[None], np.linalg.norm(force, axis=2), 1.0, tr.mass[None], a).sum(1)
         scale = (tr.mass * tr.tau**2).sum() * (np.linalg.norm(tr.omega, axis=1).max() ** 2 + 1)
         margin = (np.abs(psi).max(1) - rhs) / scale
         t = int(np.argmax(margin))
