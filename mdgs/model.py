@@ -47,6 +47,10 @@ class ModelConfig:
     force_scale : N; force networks output ``force_scale * GCN(.)``.
     dx_scale, dv_scale : m and m/s; g outputs ``[dx / dx_scale, dv / dv_scale]``.
     bound : "paper" (Eq. 12) or "corrected" (kane's corrected statement) for L_cst.
+    dt : frame interval, s. ``> 0``: positions are integrated semi-implicitly from the
+        predicted velocity, ``x' = x + dt v' + dx_scale * g_x`` (g_x a learned correction);
+        ``0``: g predicts the position increment directly (the paper's literal Eq. 9).
+        ``mdgs train`` sets it from the data (see docs/ambiguities.md).
     cst_weight : weight of L_cst in the total loss (paper: summed, i.e. 1).
     dense_max_nodes : object graphs up to this many nodes propagate densely.
     """
@@ -62,6 +66,7 @@ class ModelConfig:
     dx_scale: float = 1.0
     dv_scale: float = 1.0
     bound: str = "paper"
+    dt: float = 0.0
     cst_weight: float = 1.0
     dense_max_nodes: int = 256
 
@@ -194,8 +199,9 @@ class MDGS(nn.Module):
         f = f_c + f_nc  # Eq. (7)
         lam = c.lam if c.lam is not None else 1.0 / c.force_scale
         out = self.state(obj_prop, torch.cat([z, lam * f], -1))  # Eqs. (8)-(9)
-        x_next = x + c.dx_scale * out[..., :3]
         v_next = v + c.dv_scale * out[..., 3:]
+        # semi-implicit Euler (x' from v') when dt > 0; otherwise a free position increment
+        x_next = x + c.dx_scale * out[..., :3] + (c.dt * v_next if c.dt > 0 else 0.0)
         moving = ~scene.static.to(dev)
         if c.structure:
             x_next = align_to_reference(x_next, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj, mask=moving)
