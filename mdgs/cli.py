@@ -136,7 +136,11 @@ def register(app: typer.Typer) -> None:
             _summary(res)
 
 
-def _run_with_progress(run, cfg, label: str):
+def progress_bar(*extra_columns):
+    """A rich progress bar on stderr (description, bar, n/N, extra columns, elapsed, remaining).
+
+    Returns ``(progress, console)``; use ``progress`` as a context manager.
+    """
     from rich.console import Console
     from rich.progress import (
         BarColumn,
@@ -148,15 +152,14 @@ def _run_with_progress(run, cfg, label: str):
     )
 
     console = Console(stderr=True)
-    with Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-        console=console,
-        transient=False,
-    ) as bar:
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), *extra_columns,
+               TimeElapsedColumn(), TimeRemainingColumn())
+    return Progress(*columns, console=console, transient=False), console
+
+
+def _run_with_progress(run, cfg, label: str):
+    progress, console = progress_bar()
+    with progress as bar:
         task = bar.add_task(f"{label} trajectories", total=None)
 
         def progress(done: int, total: int) -> None:

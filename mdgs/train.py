@@ -455,19 +455,12 @@ def load_run(run: str | os.PathLike, dev) -> tuple[MDGS, dict]:
 
 
 def _train_with_progress(cfg: TrainConfig) -> dict:
-    from rich.console import Console
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
+    from rich.progress import TextColumn
 
-    console = Console(stderr=True)
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[loss]}"),
-                  TimeElapsedColumn(), TimeRemainingColumn(), console=console) as bar:
+    from mdgs.cli import progress_bar
+
+    progress, console = progress_bar(TextColumn("{task.fields[loss]}"))
+    with progress as bar:
         task = None
 
         def on(e: dict) -> None:
