@@ -31,9 +31,10 @@ import torch
 from mdgs.data.schema import DatasetError
 from mdgs.graphs import SceneGraph
 from mdgs.model import MDGS
+from mdgs.rigid import advance, twist
 from mdgs.train import RunError, SplitData, _device, atomic_json, load_run, load_split, one_step_mse
 
-__all__ = ["DIVERGENCE_FACTOR", "Rollout", "rollout", "evaluate_run", "evaluate"]
+__all__ = ["DIVERGENCE_FACTOR", "Rollout", "rollout", "constant_twist_step", "reference", "evaluate_run", "evaluate"]
 
 #: A trajectory diverges when its position MSE exceeds this factor times the split's position variance.
 DIVERGENCE_FACTOR = 100.0
@@ -60,10 +61,33 @@ class Rollout:
     threshold: float
 
 
+def constant_twist_step(scene: SceneGraph, dt: float):
+    """Reference stepper: every moving body keeps its velocity and angular velocity (no forces, no
+    contact) and moves rigidly over ``dt``; ``(x, v, control) -> (x', v')`` [B, N, 3]."""
+    seg, n, mass, moving = scene.obj, scene.n_obj, scene.mass, ~scene.static
+
+    def step(x: torch.Tensor, v: torch.Tensor, control=None) -> tuple[torch.Tensor, torch.Tensor]:
+        tw = twist(x, v, seg.to(x.device), n, mass.to(x.device))
+        xn, vn = advance(x, tw, tw.vc, tw.omega, dt, seg.to(x.device))
+        m = moving.to(x.device).view(1, -1, 1)
+        return torch.where(m, xn, x), torch.where(m, vn, torch.zeros_like(vn))
+
+    return step
+
+
 @torch.no_grad()
-def rollout(model: MDGS, scene: SceneGraph, d: SplitData, dev, threshold: float | None = None) -> Rollout:
-    """Roll out every trajectory of ``d`` from its frame 0 (all trajectories as one batch of graphs)."""
-    model.eval()
+def rollout(model: MDGS | None, scene: SceneGraph, d: SplitData, dev, threshold: float | None = None,
+            step=None) -> Rollout:
+    """Roll out every trajectory of ``d`` from its frame 0 (all trajectories as one batch of graphs).
+
+    ``step`` ``(x, v, control) -> (x', v')`` replaces the model (e.g. :func:`constant_twist_step`).
+    """
+    if step is None:
+        model.eval()
+
+        def step(x, v, c):
+            p = model(scene, x, v, c)
+            return p.x, p.v
     T, F, N, _ = d.x.shape
     moving = d.moving
     if threshold is None:
@@ -77,8 +101,8 @@ def rollout(model: MDGS, scene: SceneGraph, d: SplitData, dev, threshold: float 
     pos[:, 0] = vel[:, 0] = 0.0
     div = np.full(T, -1)
     for t in range(1, F):
-        p = model(scene, x, v, torch.from_numpy(d.control[:, t - 1]).to(dev))
-        xp, vp = p.x.cpu().numpy(), p.v.cpu().numpy()
+        xp, vp = step(x, v, torch.from_numpy(d.control[:, t - 1]).to(dev))
+        xp, vp = xp.cpu().numpy(), vp.cpu().numpy()
         ep = ((xp - d.x[:, t]) ** 2)[:, moving].mean(axis=(1, 2))
         ev = ((vp - d.v[:, t]) ** 2)[:, moving].mean(axis=(1, 2))
         bad = ~np.isfinite(ep) | ~np.isfinite(ev) | (ep > threshold)
@@ -154,6 +178,27 @@ def evaluate_run(run: str | os.PathLike, d: SplitData, dev, batch_size: int = 64
     return rep, r
 
 
+#: What the reference rollout of every report is.
+REFERENCE = "constant twist: every body keeps its velocity and angular velocity (no forces), moved rigidly"
+
+
+def reference(d: SplitData, dev) -> tuple[dict, Rollout]:
+    """MSE at the report times of the :func:`constant_twist_step` rollout: what a learned
+    simulator must beat to have learned any dynamics (gravity, contact, actuation)."""
+    scene = SceneGraph.from_static(d.static, has_contact=d.has_contact).to(dev)
+    r = rollout(None, scene, d, dev, step=constant_twist_step(scene, d.frame_dt))
+    rep = {"name": REFERENCE}
+    for t in REPORT_TIMES:
+        f = _frame_of(t, r.pos_mse.shape[1])
+        rep[f"mse_t{t}"] = _mean_valid(r.pos_mse[:, f])
+        rep[f"mse_t{t}_velocity"] = _mean_valid(r.vel_mse[:, f])
+        rep[f"mse_t{t}_trajectories"] = int(np.isfinite(r.pos_mse[:, f]).sum())
+    with np.errstate(invalid="ignore"):
+        rep["rollout_mse_curve"] = [None if not np.isfinite(c).any() else float(np.nanmean(c)) for c in r.pos_mse.T]
+    rep["diverged"] = int((r.diverged_at >= 0).sum())
+    return rep, r
+
+
 def _aggregate(reports: list[dict]) -> dict:
     agg = {"runs": len(reports)}
     for key in [f"mse_t{t}{s}" for t in REPORT_TIMES for s in ("", "_velocity")] + ["one_step_mse_scaled"]:
@@ -166,7 +211,8 @@ def _aggregate(reports: list[dict]) -> dict:
     return agg
 
 
-def _plots(reports: list[dict], rollouts: list[Rollout], d: SplitData, stem: Path, traj: int) -> dict:
+def _plots(reports: list[dict], rollouts: list[Rollout], d: SplitData, stem: Path, traj: int,
+           ref: dict | None = None) -> dict:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -185,6 +231,9 @@ def _plots(reports: list[dict], rollouts: list[Rollout], d: SplitData, stem: Pat
     ax.plot(steps[1:] + 1, mean[1:], label=label)
     if sd is not None:
         ax.fill_between(steps[1:] + 1, (mean - sd)[1:], (mean + sd)[1:], alpha=0.3, label="+- 1 std over runs")
+    if ref is not None:
+        rc = np.array([np.nan if c is None else c for c in ref["rollout_mse_curve"]], float)
+        ax.plot(steps[1:] + 1, rc[1:], color="0.4", ls="--", lw=1, label="reference: constant twist")
     for r in reports:
         for dv in r["diverged"]:
             ax.axvline(dv["step"] + 1, color="r", lw=0.6, alpha=0.5)
@@ -259,6 +308,7 @@ def evaluate(runs: list[str | os.PathLike], data: str | os.PathLike, split: str 
     d = load_split(data / f"{split}.h5")
     if not 0 <= traj < d.x.shape[0]:
         raise RunError(f"--traj {traj} is out of range; {d.path} has {d.x.shape[0]} trajectories")
+    ref, _ = reference(d, dev)
     reps, rolls = [], []
     for run in runs:
         rep, r = evaluate_run(run, d, dev)
@@ -276,12 +326,13 @@ def evaluate(runs: list[str | os.PathLike], data: str | os.PathLike, split: str 
                   "divergence": f"NaN, or position MSE > {DIVERGENCE_FACTOR:g} x position variance of the split"},
         "split": split,
         "aggregate": _aggregate(reps),
+        "reference": ref,
         "runs": reps,
         "status": "diverged" if any(r["diverged"] for r in reps) else "ok",
     }
     for key in ("mse_t40", "mse_t110", "mse_t40_velocity", "mse_t110_velocity"):
         report[key] = report["aggregate"][key]["mean"]
-    report["plots"] = _plots(reps, rolls, d, json_path.with_suffix(""), traj)
+    report["plots"] = _plots(reps, rolls, d, json_path.with_suffix(""), traj, ref)
     atomic_json(report, json_path)
     report["json"] = str(json_path)
     return report

@@ -22,12 +22,15 @@ import torch
 from torch import nn
 
 from mdgs.graphs import Propagator, SceneGraph, contact_edges, gcn_norm
+from mdgs.rigid import advance, project, twist
 from mdgs.structure import align_to_reference
 
-__all__ = ["ModelConfig", "VARIANTS", "GCN", "Prediction", "MDGS"]
+__all__ = ["ModelConfig", "VARIANTS", "INTEGRATORS", "GCN", "Prediction", "MDGS"]
 
 #: Variants of Table 1: the full method, no Kane constraint, single-speed constraint.
 VARIANTS = ("mdgs", "mdgs-nc", "mdgs-sc")
+#: How the state network's output becomes the next state (see ModelConfig.integrator).
+INTEGRATORS = ("rigid", "euler", "direct")
 
 
 @dataclass(frozen=True)
@@ -47,10 +50,14 @@ class ModelConfig:
     force_scale : N; force networks output ``force_scale * GCN(.)``.
     dx_scale, dv_scale : m and m/s; g outputs ``[dx / dx_scale, dv / dv_scale]``.
     bound : "paper" (Eq. 12) or "corrected" (kane's corrected statement) for L_cst.
-    dt : frame interval, s. ``> 0``: positions are integrated semi-implicitly from the
-        predicted velocity, ``x' = x + dt v' + dx_scale * g_x`` (g_x a learned correction);
-        ``0``: g predicts the position increment directly (the paper's literal Eq. 9).
-        ``mdgs train`` sets it from the data (see docs/ambiguities.md).
+    integrator : how g's output ``[g_x || g_v]`` becomes ``Z^(t+1)`` (docs/ambiguities.md):
+        "rigid" (default): ``dv_scale * g_v`` is a velocity increment whose rigid part
+        (:func:`mdgs.rigid.project`) updates each object's twist, and nodes move with the
+        exact rigid motion of the new twist over ``dt`` (:func:`mdgs.rigid.advance`), plus the
+        rigid part of ``dx_scale * g_x`` as a position correction;
+        "euler": ``v' = v + dv_scale g_v``, ``x' = x + dt v' + dx_scale g_x`` per node;
+        "direct": ``v' = v + dv_scale g_v``, ``x' = x + dx_scale g_x`` (the paper's literal Eq. 9).
+    dt : frame interval, s (used by "rigid" and "euler"); ``mdgs train`` sets it from the data.
     cst_weight : weight of L_cst in the total loss (paper: summed, i.e. 1).
     dense_max_nodes : object graphs up to this many nodes propagate densely.
     """
@@ -66,6 +73,7 @@ class ModelConfig:
     dx_scale: float = 1.0
     dv_scale: float = 1.0
     bound: str = "paper"
+    integrator: str = "rigid"
     dt: float = 0.0
     cst_weight: float = 1.0
     dense_max_nodes: int = 256
@@ -75,6 +83,8 @@ class ModelConfig:
             raise ValueError(f"variant must be one of {', '.join(VARIANTS)}, got {self.variant!r}")
         if self.bound not in ("paper", "corrected"):
             raise ValueError(f"bound must be 'paper' or 'corrected', got {self.bound!r}")
+        if self.integrator not in INTEGRATORS:
+            raise ValueError(f"integrator must be one of {', '.join(INTEGRATORS)}, got {self.integrator!r}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -199,9 +209,7 @@ class MDGS(nn.Module):
         f = f_c + f_nc  # Eq. (7)
         lam = c.lam if c.lam is not None else 1.0 / c.force_scale
         out = self.state(obj_prop, torch.cat([z, lam * f], -1))  # Eqs. (8)-(9)
-        v_next = v + c.dv_scale * out[..., 3:]
-        # semi-implicit Euler (x' from v') when dt > 0; otherwise a free position increment
-        x_next = x + c.dx_scale * out[..., :3] + (c.dt * v_next if c.dt > 0 else 0.0)
+        x_next, v_next = self.integrate(scene, x, v, out)
         moving = ~scene.static.to(dev)
         if c.structure:
             x_next = align_to_reference(x_next, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj, mask=moving)
@@ -210,6 +218,22 @@ class MDGS(nn.Module):
         x_next = torch.where(m, x_next, x)
         v_next = torch.where(m, v_next, torch.zeros_like(v_next))
         return Prediction(x_next, v_next, f, f_nc, f_c, ce)
+
+    def integrate(self, scene: SceneGraph, x: torch.Tensor, v: torch.Tensor,
+                  out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``Z^(t+1)`` from the state network's output ``out = [g_x || g_v]`` [B, N, 6] (see ``integrator``)."""
+        c = self.config
+        if c.integrator == "rigid":
+            seg, n, mass = scene.obj.to(x.device), scene.n_obj, scene.mass.to(x.device)
+            tw = twist(x, v, seg, n, mass)
+            dvc, dw = project(c.dv_scale * out[..., 3:], x, tw, seg, n, mass)
+            dc, dth = project(c.dx_scale * out[..., :3], x, tw, seg, n, mass)
+            return advance(x, tw, tw.vc + dvc, tw.omega + dw, c.dt, seg, dc, dth)
+        v_next = v + c.dv_scale * out[..., 3:]
+        x_next = x + c.dx_scale * out[..., :3]
+        if c.integrator == "euler":  # semi-implicit Euler per node
+            x_next = x_next + c.dt * v_next
+        return x_next, v_next
 
     @torch.no_grad()
     def rollout(self, scene: SceneGraph, x0: torch.Tensor, v0: torch.Tensor, steps: int,

@@ -38,6 +38,7 @@ from mdgs.data.schema import DatasetError
 from mdgs.graphs import SceneGraph
 from mdgs.losses import constraint_loss, mse_loss, speeds_of
 from mdgs.model import MDGS, ModelConfig
+from mdgs.rigid import perturb
 
 __all__ = [
     "TrainConfig",
@@ -233,25 +234,56 @@ def noise_sigmas(spec: str, d: SplitData) -> tuple[float, float]:
     return f * float(dx.std()), f * float(dv.std())
 
 
-def _resolve_model(cfg: ModelConfig, d: SplitData) -> ModelConfig:
-    """Fill scales left at 1.0 from the training data (increment stds, element force) and ``control_dim``."""
+def _rigid_increments(d: SplitData, scene: SceneGraph, dt: float,
+                      max_pairs: int = 4096) -> tuple[np.ndarray, np.ndarray]:
+    """What the "rigid" integrator's g predicts, on (up to ``max_pairs``) training pairs.
+
+    Returns the node velocity increments of the rigid twist change ``(v_c' - v_c) + (w' - w) x r_i``
+    and the position residual ``x' - advance(x, twist', dt)``, both [P, N_moving, 3].
+    """
+    from mdgs.rigid import advance, twist
+
+    pairs = d.pairs()
+    if len(pairs) > max_pairs:
+        pairs = pairs[np.linspace(0, len(pairs) - 1, max_pairs).astype(int)]
+    t, f = pairs[:, 0], pairs[:, 1]
+    x0, v0 = torch.from_numpy(d.x[t, f]).double(), torch.from_numpy(d.v[t, f]).double()
+    x1, v1 = torch.from_numpy(d.x[t, f + 1]).double(), torch.from_numpy(d.v[t, f + 1]).double()
+    seg, n, mass = scene.obj, scene.n_obj, scene.mass
+    a, b = twist(x0, v0, seg, n, mass), twist(x1, v1, seg, n, mass)
+    r = x0 - a.c[:, seg]
+    dv = (b.vc - a.vc)[:, seg] + torch.linalg.cross((b.omega - a.omega)[:, seg], r, dim=-1)
+    xr, _ = advance(x0, a, b.vc, b.omega, dt, seg)
+    mv = d.moving
+    return dv[:, mv].numpy(), (x1 - xr)[:, mv].numpy()
+
+
+def _resolve_model(cfg: ModelConfig, d: SplitData, scene: SceneGraph | None = None) -> ModelConfig:
+    """Fill scales left at 1.0 from the training data and set ``control_dim`` and ``dt``.
+
+    ``dx_scale``, ``dv_scale``: std of what g predicts under the chosen integrator (position
+    residual and velocity increment); ``force_scale``: mean ``|M dv / dt|`` of an element.
+    """
     dx, dv = _increments(d)
     mass = np.asarray(d.static["node_mass"])[d.moving]
     kw = {"control_dim": int(d.control.shape[-1])}
-    if cfg.dt < 0:  # explicit opt-out: the paper's literal free position increment
-        kw["dt"] = 0.0
-    elif cfg.dt == 0.0:
+    if cfg.dt <= 0.0:
         kw["dt"] = float(d.frame_dt)
     dt = kw.get("dt", cfg.dt)
-    if dt > 0:  # the learned position term is the residual x' - x - dt v'
+    f_scale = float(max(np.abs(mass[None, None, :, None] * dv / d.frame_dt).mean(), 1e-9))
+    if cfg.integrator == "euler":  # the learned position term is the residual x' - x - dt v'
         xs, vs = d.x[..., d.moving, :], d.v[..., d.moving, :]
         dx = (xs[:, 1:] - xs[:, :-1] - dt * vs[:, 1:]).reshape(-1, 3)
+    elif cfg.integrator == "rigid":
+        if scene is None:
+            raise ValueError("the rigid integrator's scales need the scene graph")
+        dv, dx = _rigid_increments(d, scene, dt)
     if cfg.dx_scale == 1.0:
         kw["dx_scale"] = float(max(dx.std(), 1e-12))
     if cfg.dv_scale == 1.0:
         kw["dv_scale"] = float(max(dv.std(), 1e-12))
     if cfg.force_scale == 1.0:  # typical |M dv / dt| of an element, N
-        kw["force_scale"] = float(max(np.abs(mass[None, None, :, None] * dv / d.frame_dt).mean(), 1e-9))
+        kw["force_scale"] = f_scale
     return replace(cfg, **kw)
 
 
@@ -355,7 +387,8 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None,
     if tr.identity()["mjcf_sha256"] != va.identity()["mjcf_sha256"]:
         raise DatasetError(f"{va.path} is of another scene than {tr.path}; use the three files of one `mdgs generate` run")
     dev = _device(cfg.device)
-    mcfg = _resolve_model(cfg.model, tr)
+    scene_cpu = SceneGraph.from_static(tr.static, has_contact=tr.has_contact)
+    mcfg = _resolve_model(cfg.model, tr, scene_cpu)
     sig_x, sig_v = noise_sigmas(cfg.noise, tr)
     resolved = {**asdict(cfg), "model": mcfg.to_dict(), "device": str(dev),
                 "noise_sigma_x_m": sig_x, "noise_sigma_v_m_per_s": sig_v, "data_identity": tr.identity(),
@@ -372,9 +405,9 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None,
                            f"settings in {out / 'config.json'}, choose another --out, or delete {ckpt_path}")
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
-    scene = SceneGraph.from_static(tr.static, has_contact=tr.has_contact).to(dev)
+    scene = scene_cpu.to(dev)
     model = MDGS(mcfg, contact=tr.has_contact).to(dev)
-    model.set_normalization(*_feature_stats(model, scene.to("cpu"), tr))
+    model.set_normalization(*_feature_stats(model, scene_cpu, tr))
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, betas=(0.9, 0.999))
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, patience=3, factor=0.8)
     history, steps_log, start = [], [], 0
@@ -401,8 +434,13 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None,
         for s in range(n_steps):
             x, v, c, xt, vt = batch_of(tr, pairs[s * cfg.batch_size:(s + 1) * cfg.batch_size], dev)
             # training noise (B.2) on the input frame's moving nodes; targets stay clean (noise_sigmas)
-            x = x + sig_x * mv * torch.randn(x.shape, generator=gen, device=dev)
-            v = v + sig_v * mv * torch.randn(v.shape, generator=gen, device=dev)
+            nx = sig_x * mv * torch.randn(x.shape, generator=gen, device=dev)
+            nv = sig_v * mv * torch.randn(v.shape, generator=gen, device=dev)
+            if mcfg.integrator == "rigid":  # rigid rollouts see rigid errors: perturb each object rigidly
+                xn, vn = perturb(x, v, nx, nv, scene.obj, scene.n_obj, scene.mass)
+                x, v = torch.where(mv > 0, xn, x), torch.where(mv > 0, vn, v)
+            else:
+                x, v = x + nx, v + nv
             l_mse, l_cst = step_losses(model, scene, mcfg, x, v, c, xt, vt, tr.frame_dt, moving)
             loss = l_mse + mcfg.cst_weight * l_cst  # Section 3.4: summed
             if not torch.isfinite(loss):

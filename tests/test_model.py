@@ -79,17 +79,40 @@ def test_contact_forces_only_on_contact_nodes():
     assert nz <= touched and nz
 
 
-@pytest.mark.parametrize("structure", [True, False])
-def test_structural_module_keeps_objects_rigid(structure):
+def _cube_rigidity_error(model) -> float:
     static, pos = _cubes()
     sc = SceneGraph.from_static(static, has_contact=True)
-    model = MDGS(ModelConfig(structure=structure, dx_scale=0.05, **SMALL))
     p = model(sc, pos[None], torch.randn_like(pos)[None])
     x = p.x[0].double()
     ref = torch.tensor(static["node_centroid"])
-    err = max((torch.cdist(x[s], x[s]) - torch.cdist(ref[s], ref[s])).abs().max().item()
-              for s in (slice(0, 8), slice(8, 16)))
-    assert (err < 1e-5) == structure
+    return max((torch.cdist(x[s], x[s]) - torch.cdist(ref[s], ref[s])).abs().max().item()
+               for s in (slice(0, 8), slice(8, 16)))
+
+
+@pytest.mark.parametrize("structure", [True, False])
+def test_structural_module_keeps_objects_rigid(structure):
+    """With the per-node Euler integrator only the structural module keeps the cubes rigid."""
+    model = MDGS(ModelConfig(structure=structure, integrator="euler", dt=0.01, dx_scale=0.05, **SMALL))
+    assert (_cube_rigidity_error(model) < 1e-5) == structure
+
+
+def test_rigid_integrator_keeps_objects_rigid_without_the_structural_module():
+    model = MDGS(ModelConfig(structure=False, integrator="rigid", dt=0.01, dx_scale=0.05, dv_scale=3.0, **SMALL))
+    assert _cube_rigidity_error(model) < 1e-5  # float32 node positions of 0.1 m cubes
+
+
+def test_rigid_model_with_zero_state_output_keeps_every_twist():
+    """g = 0: the rigid integrator is the constant-twist reference (each cube keeps its velocity)."""
+    static, pos = _cubes()
+    sc = SceneGraph.from_static(static, has_contact=True)
+    model = MDGS(ModelConfig(dt=0.01, **SMALL))
+    torch.nn.init.zeros_(model.state.lins[-1].weight)
+    torch.nn.init.zeros_(model.state.lins[-1].bias)
+    v = torch.zeros_like(pos)
+    v[:8] = torch.tensor([0.5, 0.0, 0.0])
+    p = model(sc, pos[None], v[None])
+    # float32 positions of 0.1 m cubes: 1e-6 m
+    assert torch.allclose(p.x[0] - pos, v * 0.01, atol=1e-6) and torch.allclose(p.v[0], v, atol=1e-6)
 
 
 def test_constraint_loss_updates_only_force_networks():
@@ -106,14 +129,18 @@ def test_constraint_loss_updates_only_force_networks():
     assert any(q.grad is not None and q.grad.abs().sum() > 0 for q in model.force_contact.parameters())
 
 
-def test_model_fits_one_step():
-    """A few Adam steps on a fixed batch cut L_mse + L_cst: the whole graph is trainable."""
+@pytest.mark.parametrize("integrator", ["rigid", "euler"])
+def test_model_fits_one_step(integrator):
+    """A few Adam steps on a fixed batch cut L_mse + L_cst: the whole graph is trainable.
+
+    Each cube translates at its own random velocity and falls under gravity for one 10 ms step."""
     torch.manual_seed(0)
     static, pos = _cubes()
     sc = SceneGraph.from_static(static, has_contact=True)
-    model = MDGS(ModelConfig(structure=False, dx_scale=0.01, dv_scale=0.1, force_scale=10.0, **SMALL))
-    x = pos[None] + 0.01 * torch.randn(4, *pos.shape)
-    v = torch.randn_like(x)
+    model = MDGS(ModelConfig(structure=False, integrator=integrator, dt=0.01, dx_scale=0.01, dv_scale=0.1,
+                             force_scale=10.0, **SMALL))
+    x = pos[None] + 0.01 * torch.randn(4, 1, 3)
+    v = torch.randn(4, 2, 3)[:, sc.obj]
     vt = v + torch.tensor([0.0, 0.0, -0.098])
     xt = x + 0.01 * vt
     opt = torch.optim.Adam(model.parameters(), lr=1e-3)
