@@ -55,6 +55,7 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=256)
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--no-structure", action="store_true", help="switch the structural module off")
+    ap.add_argument("--integrator", default="rigid", choices=["rigid", "euler", "direct"])
     args = ap.parse_args()
     torch.set_num_threads(torch.get_num_threads())
 
@@ -63,7 +64,9 @@ def main() -> None:
     static = static_arrays(loaded)
     scene = SceneGraph.from_static(static, spec.has_contact)
     N = scene.num_nodes
-    model = MDGS(ModelConfig(structure=not args.no_structure), contact=spec.has_contact).eval()
+    frame_dt = float(loaded.inst.model.opt.timestep) * int(spec.substeps)
+    model = MDGS(ModelConfig(structure=not args.no_structure, integrator=args.integrator, dt=frame_dt),
+                 contact=spec.has_contact).eval()
 
     # a real state: frame 1 of a test trajectory of the scene
     fr = simulate(loaded, "test", [0], seed=0, n_frames=2)
@@ -99,7 +102,8 @@ def main() -> None:
     tm = _median_time(frame, args.repeats * 5)
 
     print(f"scene {args.scene}: {N} nodes, contact branch {'on' if spec.has_contact else 'off'}, "
-          f"structure module {'off' if args.no_structure else 'on'}, torch threads {torch.get_num_threads()}")
+          f"structure module {'off' if args.no_structure else 'on'}, integrator {args.integrator}, "
+          f"torch threads {torch.get_num_threads()}")
     print(f"{'':32s}{'median':>12s}{'per scene':>14s}")
     print(f"{'MuJoCo frame (' + str(substeps) + ' steps)':32s}{tm * 1e3:10.3f} ms{tm * 1e3:12.3f} ms")
     print(f"{'MDGS step, 1 scene':32s}{t1 * 1e3:10.3f} ms{t1 * 1e3:12.3f} ms   ({t1 / tm:.0f}x MuJoCo)")
