@@ -123,6 +123,32 @@ def test_evaluate_writes_report_and_plots(data, run, tmp_path):
     assert rep["aggregate"]["runs"] == 2 and rep["aggregate"]["one_step_mse_scaled"]["std"] == pytest.approx(0, abs=1e-9)
     for p in rep["plots"].values():
         assert (tmp_path / p.split("/")[-1]).stat().st_size > 1000
+    ref = rep["reference"]  # constant twist: finite, and printed by the CLI
+    assert np.isfinite(ref["mse_t40"]) and np.isfinite(ref["mse_t110"]) and ref["mse_t110"] > 0
+    assert "reference" in res.output
+
+
+def test_constant_twist_reference_keeps_each_body_twist_and_shape(data):
+    """One reference step from a recorded frame: same twist per body, same shapes, static nodes fixed."""
+    from mdgs.evaluate import constant_twist_step
+    from mdgs.graphs import SceneGraph
+    from mdgs.rigid import twist
+
+    d = load_split(data / "test.h5")
+    sc = SceneGraph.from_static(d.static, has_contact=d.has_contact)
+    x, v = torch.from_numpy(d.x[:, 5]), torch.from_numpy(d.v[:, 5])
+    xn, vn = constant_twist_step(sc, d.frame_dt)(x, v)
+    a, b = twist(x, v, sc.obj, sc.n_obj, sc.mass), twist(xn, vn, sc.obj, sc.n_obj, sc.mass)
+    mv = ~sc.static
+    # twist kept (float32 states: 1e-4 relative of a flywheel at ~1000 rad/s), static nodes fixed
+    assert torch.allclose(b.omega, a.omega, rtol=1e-4, atol=1e-3) and torch.allclose(b.vc, a.vc, atol=1e-5)
+    assert torch.equal(xn[:, ~mv], x[:, ~mv])
+    # and the shape of every body is kept to float32 resolution
+    for s in range(sc.n_obj):
+        sel = (sc.obj == s) & mv
+        if sel.sum() > 1:
+            dd = torch.cdist(xn[:, sel].double(), xn[:, sel].double()) - torch.cdist(x[:, sel].double(), x[:, sel].double())
+            assert dd.abs().max() < 1e-5
 
 
 def test_divergence_is_detected_not_averaged(data, run, tmp_path, monkeypatch):
