@@ -55,7 +55,7 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=256)
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--no-structure", action="store_true", help="switch the structural module off")
-    ap.add_argument("--integrator", default="rigid", choices=["rigid", "euler", "direct"])
+    ap.add_argument("--integrator", default="rigid", choices=["rigid", "twist", "euler", "direct"])
     args = ap.parse_args()
     torch.set_num_threads(torch.get_num_threads())
 

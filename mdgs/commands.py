@@ -29,8 +29,8 @@ def _register_train(app) -> None:
         structure: bool = typer.Option(True, "--structure/--no-structure", help="Structural constraint module (B.1.3)."),
         bound: str = typer.Option("paper", "--bound", help="Bound of L_cst: paper (Eq. 12) or corrected."),
         integrator: str = typer.Option("rigid", "--integrator",
-                                       help="rigid (per-object twist, exact rigid motion), euler or direct (Eq. 9 "
-                                            "literally); see docs/ambiguities.md."),
+                                       help="rigid (per-object twist, exact rigid motion), twist (g read in twist "
+                                            "space), euler or direct (Eq. 9 literally); see docs/ambiguities.md."),
         epochs: int = typer.Option(20, "--epochs", help="Total epochs (a resumed run stops at this count)."),
         batch_size: int = typer.Option(32, "--batch-size", help="Graphs per step."),
         lr: float = typer.Option(1e-3, "--lr", help="Adam learning rate (B.2)."),

@@ -23,14 +23,14 @@ from torch import nn
 
 from mdgs.graphs import Propagator, SceneGraph, contact_edges, gcn_norm
 from mdgs.rigid import advance, project, twist
-from mdgs.structure import align_to_reference
+from mdgs.structure import align_to_reference, segment_mean
 
 __all__ = ["ModelConfig", "VARIANTS", "INTEGRATORS", "GCN", "Prediction", "MDGS"]
 
 #: Variants of Table 1: the full method, no Kane constraint, single-speed constraint.
 VARIANTS = ("mdgs", "mdgs-nc", "mdgs-sc")
 #: How the state network's output becomes the next state (see ModelConfig.integrator).
-INTEGRATORS = ("rigid", "euler", "direct")
+INTEGRATORS = ("rigid", "twist", "euler", "direct")
 
 
 @dataclass(frozen=True)
@@ -55,9 +55,14 @@ class ModelConfig:
         (:func:`mdgs.rigid.project`) updates each object's twist, and nodes move with the
         exact rigid motion of the new twist over ``dt`` (:func:`mdgs.rigid.advance`), plus the
         rigid part of ``dx_scale * g_x`` as a position correction;
+        "twist": g's outputs are read in twist space: the mass-weighted means over each object of
+        ``dw_scale * g_x`` and ``dvc_scale * g_v`` are its angular and linear velocity increments,
+        and nodes move rigidly with the mean of the old and new twist (trapezoidal rule);
         "euler": ``v' = v + dv_scale g_v``, ``x' = x + dt v' + dx_scale g_x`` per node;
         "direct": ``v' = v + dv_scale g_v``, ``x' = x + dx_scale g_x`` (the paper's literal Eq. 9).
-    dt : frame interval, s (used by "rigid" and "euler"); ``mdgs train`` sets it from the data.
+    dvc_scale, dw_scale : m/s and rad/s, output scales of the "twist" integrator (spread of the
+        objects' velocity and angular velocity increments in the training data).
+    dt : frame interval, s (used by "rigid", "twist" and "euler"); ``mdgs train`` sets it from the data.
     cst_weight : weight of L_cst in the total loss (paper: summed, i.e. 1).
     dense_max_nodes : object graphs up to this many nodes propagate densely.
     """
@@ -74,6 +79,8 @@ class ModelConfig:
     dv_scale: float = 1.0
     bound: str = "paper"
     integrator: str = "rigid"
+    dvc_scale: float = 1.0
+    dw_scale: float = 1.0
     dt: float = 0.0
     cst_weight: float = 1.0
     dense_max_nodes: int = 256
@@ -229,6 +236,13 @@ class MDGS(nn.Module):
             dvc, dw = project(c.dv_scale * out[..., 3:], x, tw, seg, n, mass)
             dc, dth = project(c.dx_scale * out[..., :3], x, tw, seg, n, mass)
             return advance(x, tw, tw.vc + dvc, tw.omega + dw, c.dt, seg, dc, dth)
+        if c.integrator == "twist":
+            seg, n, mass = scene.obj.to(x.device), scene.n_obj, scene.mass.to(x.device)
+            tw = twist(x, v, seg, n, mass)
+            w = mass.to(torch.float64)
+            dw = segment_mean(c.dw_scale * out[..., :3].to(torch.float64), seg, n, w)
+            dvc = segment_mean(c.dvc_scale * out[..., 3:].to(torch.float64), seg, n, w)
+            return advance(x, tw, tw.vc + dvc, tw.omega + dw, c.dt, seg, trapezoidal=True)
         v_next = v + c.dv_scale * out[..., 3:]
         x_next = x + c.dx_scale * out[..., :3]
         if c.integrator == "euler":  # semi-implicit Euler per node

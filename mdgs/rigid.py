@@ -90,16 +90,19 @@ def project(d: torch.Tensor, x: torch.Tensor, tw: Twist, seg: torch.Tensor, n_se
 
 def advance(x: torch.Tensor, tw: Twist, vc_new: torch.Tensor, omega_new: torch.Tensor, dt: float,
             seg: torch.Tensor, dc: torch.Tensor | None = None,
-            dtheta: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+            dtheta: torch.Tensor | None = None, trapezoidal: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """Move every object rigidly by its new twist over ``dt`` (semi-implicit Euler on SE(3)).
 
     ``c' = c + dt v_c' + dc``, ``r_i' = exp([dt omega' + dtheta]_x) r_i``, ``x_i' = c' + r_i'``,
     ``v_i' = v_c' + omega' x r_i'``; ``dc``, ``dtheta`` [B, S, 3] are optional position
-    corrections (translation, rotation vector). Returns ``x', v'`` [B, N, 3] in ``x``'s dtype.
+    corrections (translation, rotation vector). ``trapezoidal``: move with the mean of the old
+    and new twist instead of the new one (exact for a constant acceleration over the step).
+    Returns ``x', v'`` [B, N, 3] in ``x``'s dtype.
     """
     r = x.to(torch.float64) - tw.c[:, seg]
-    c_new = tw.c + dt * vc_new + (0 if dc is None else dc)
-    phi = dt * omega_new + (0 if dtheta is None else dtheta)
+    vc_move, w_move = ((tw.vc + vc_new) / 2, (tw.omega + omega_new) / 2) if trapezoidal else (vc_new, omega_new)
+    c_new = tw.c + dt * vc_move + (0 if dc is None else dc)
+    phi = dt * w_move + (0 if dtheta is None else dtheta)
     R = torch.linalg.matrix_exp(_skew_mat(phi))  # [B, S, 3, 3]
     r_new = (R[:, seg] @ r.unsqueeze(-1)).squeeze(-1)
     x_new = c_new[:, seg] + r_new

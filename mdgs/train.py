@@ -234,12 +234,13 @@ def noise_sigmas(spec: str, d: SplitData) -> tuple[float, float]:
     return f * float(dx.std()), f * float(dv.std())
 
 
-def _rigid_increments(d: SplitData, scene: SceneGraph, dt: float,
-                      max_pairs: int = 4096) -> tuple[np.ndarray, np.ndarray]:
-    """What the "rigid" integrator's g predicts, on (up to ``max_pairs``) training pairs.
+def _rigid_increments(d: SplitData, scene: SceneGraph, dt: float, trapezoidal: bool = False,
+                      max_pairs: int = 4096) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What the rigid integrators' g predicts, on (up to ``max_pairs``) training pairs.
 
     Returns the node velocity increments of the rigid twist change ``(v_c' - v_c) + (w' - w) x r_i``
-    and the position residual ``x' - advance(x, twist', dt)``, both [P, N_moving, 3].
+    and the position residual ``x' - advance(x, twist', dt)``, both [P, N_moving, 3], and the
+    moving objects' increments ``v_c' - v_c`` and ``w' - w`` [P, S_moving, 3].
     """
     from mdgs.rigid import advance, twist
 
@@ -253,9 +254,11 @@ def _rigid_increments(d: SplitData, scene: SceneGraph, dt: float,
     a, b = twist(x0, v0, seg, n, mass), twist(x1, v1, seg, n, mass)
     r = x0 - a.c[:, seg]
     dv = (b.vc - a.vc)[:, seg] + torch.linalg.cross((b.omega - a.omega)[:, seg], r, dim=-1)
-    xr, _ = advance(x0, a, b.vc, b.omega, dt, seg)
+    xr, _ = advance(x0, a, b.vc, b.omega, dt, seg, trapezoidal=trapezoidal)
     mv = d.moving
-    return dv[:, mv].numpy(), (x1 - xr)[:, mv].numpy()
+    objs = np.unique(np.asarray(seg)[mv])
+    return (dv[:, mv].numpy(), (x1 - xr)[:, mv].numpy(), (b.vc - a.vc)[:, objs].numpy(),
+            (b.omega - a.omega)[:, objs].numpy())
 
 
 def _resolve_model(cfg: ModelConfig, d: SplitData, scene: SceneGraph | None = None) -> ModelConfig:
@@ -274,12 +277,19 @@ def _resolve_model(cfg: ModelConfig, d: SplitData, scene: SceneGraph | None = No
     if cfg.integrator == "euler":  # the learned position term is the residual x' - x - dt v'
         xs, vs = d.x[..., d.moving, :], d.v[..., d.moving, :]
         dx = (xs[:, 1:] - xs[:, :-1] - dt * vs[:, 1:]).reshape(-1, 3)
-    elif cfg.integrator == "rigid":
+    elif cfg.integrator in ("rigid", "twist"):
         if scene is None:
-            raise ValueError("the rigid integrator's scales need the scene graph")
-        dv, dx = _rigid_increments(d, scene, dt)
+            raise ValueError("the rigid integrators' scales need the scene graph")
+        dv, dx, dvc, dw = _rigid_increments(d, scene, dt, trapezoidal=cfg.integrator == "twist")
+        if cfg.integrator == "twist":
+            if cfg.dvc_scale == 1.0:
+                kw["dvc_scale"] = float(max(dvc.std(), 1e-12))
+            if cfg.dw_scale == 1.0:
+                kw["dw_scale"] = float(max(dw.std(), 1e-12))
+    if cfg.integrator == "twist":  # g has no position output: weigh a velocity error like the
+        dx = np.array([dt / 2 * dv.std()])  # position error it makes over half a frame
     if cfg.dx_scale == 1.0:
-        kw["dx_scale"] = float(max(dx.std(), 1e-12))
+        kw["dx_scale"] = float(max(dx.std() if dx.size > 1 else abs(dx[0]), 1e-12))
     if cfg.dv_scale == 1.0:
         kw["dv_scale"] = float(max(dv.std(), 1e-12))
     if cfg.force_scale == 1.0:  # typical |M dv / dt| of an element, N
@@ -436,7 +446,7 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None,
             # training noise (B.2) on the input frame's moving nodes; targets stay clean (noise_sigmas)
             nx = sig_x * mv * torch.randn(x.shape, generator=gen, device=dev)
             nv = sig_v * mv * torch.randn(v.shape, generator=gen, device=dev)
-            if mcfg.integrator == "rigid":  # rigid rollouts see rigid errors: perturb each object rigidly
+            if mcfg.integrator in ("rigid", "twist"):  # rigid rollouts see rigid errors: perturb each object rigidly
                 xn, vn = perturb(x, v, nx, nv, scene.obj, scene.n_obj, scene.mass)
                 x, v = torch.where(mv > 0, xn, x), torch.where(mv > 0, vn, v)
             else:

@@ -129,7 +129,7 @@ def test_constraint_loss_updates_only_force_networks():
     assert any(q.grad is not None and q.grad.abs().sum() > 0 for q in model.force_contact.parameters())
 
 
-@pytest.mark.parametrize("integrator", ["rigid", "euler"])
+@pytest.mark.parametrize("integrator", ["rigid", "twist", "euler"])
 def test_model_fits_one_step(integrator):
     """A few Adam steps on a fixed batch cut L_mse + L_cst: the whole graph is trainable.
 

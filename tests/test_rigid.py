@@ -91,3 +91,22 @@ def test_constant_twist_step_matches_mujoco_on_torque_free_spin_about_a_principa
     xn, vn = advance(x, tw, tw.vc, tw.omega, 0.01, seg)
     # RK4 at 1e-4 s integrates this exactly to ~1e-12; the rigid step is exact for constant omega
     assert np.allclose(xn[0].numpy(), x1, atol=1e-9) and np.allclose(vn[0].numpy(), v1, atol=1e-8)
+
+
+def test_trapezoidal_step_is_exact_for_constant_acceleration_about_a_fixed_axis():
+    """A wheel spun up from 200 to 900 rad/s in one 10 ms frame while its centre accelerates:
+    angle omega0 t + alpha t^2 / 2 and centre v0 t + a t^2 / 2, exactly."""
+    ang = torch.linspace(0, 2 * np.pi, 7, dtype=torch.float64)[:-1]
+    r0 = torch.stack([0.03 * torch.cos(ang), 0.03 * torch.sin(ang), torch.zeros_like(ang)], -1)[None]
+    seg, mass = torch.zeros(6, dtype=torch.long), torch.ones(6, dtype=torch.float64)
+    w0, w1, dt = 200.0, 900.0, 0.01
+    vc0, vc1 = torch.tensor([0.1, 0.0, 0.0], dtype=torch.float64), torch.tensor([0.3, 0.0, -0.2], dtype=torch.float64)
+    x = r0 + 1.0
+    v = vc0 + torch.linalg.cross(torch.tensor([0.0, 0.0, w0], dtype=torch.float64).expand(1, 6, 3), r0, dim=-1)
+    tw = twist(x, v, seg, 1, mass)
+    xn, _ = advance(x, tw, vc1.view(1, 1, 3), torch.tensor([[[0.0, 0.0, w1]]], dtype=torch.float64), dt, seg,
+                    trapezoidal=True)
+    th = w0 * dt + (w1 - w0) / 2 * dt
+    exp = torch.stack([0.03 * torch.cos(ang + th), 0.03 * torch.sin(ang + th), torch.zeros_like(ang)], -1)[None]
+    exp = exp + 1.0 + (vc0 + vc1) / 2 * dt
+    assert torch.allclose(xn, exp, atol=1e-12)
