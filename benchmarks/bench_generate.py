@@ -15,6 +15,11 @@ one core:
 
 Both count integrator steps; the ratio is generation / raw throughput (target >= 0.70).
 Scene setup (MJCF compile, partition) is done once per dataset and not counted.
+
+Timings are noisy on a shared machine, so the two are measured side by side: each
+repeat runs the generation, the merge and then raw stepping of that repeat's
+trajectories, after one uncounted warm-up repeat; ratios are the medians of the
+repeats' paired ratios, rates the medians of the repeats' rates.
 """
 
 from __future__ import annotations
@@ -52,43 +57,49 @@ def bench(name: str, n_traj: int, n_frames: int, repeats: int) -> dict:
         mdgs_version="bench",
         complete=False,
     )
-    gen, merge = [], []
+    m = mujoco.MjModel.from_xml_string(sc.mjcf)
+    d = mujoco.MjData(m)
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+
+    def raw_inputs(fr):
+        # raw: same initial states and controls, plain model, one rollout call
+        init = np.zeros((n_traj, mujoco.mj_stateSize(m, spec)))
+        for i in range(n_traj):
+            mujoco.mj_resetData(m, d)
+            d.qpos[:], d.qvel[:] = fr["qpos"][i, 0], fr["qvel"][i, 0]
+            mujoco.mj_getState(m, d, init[i], spec)
+        return init, np.ascontiguousarray(np.repeat(fr["ctrl"], k, axis=1))
+
+    gen, merge, raw = [], [], []
     with tempfile.TemporaryDirectory() as tmp:
-        for r in range(repeats):
+        for r in range(repeats + 1):  # repeat 0: warm-up, not counted
             t = time.perf_counter()
             fr = simulate(sc, "train", range(n_traj), seed=r, n_frames=n_frames)
             part = Path(tmp) / f"part{r}.h5"
             write_file(part, attrs, sc.mjcf, static, fr)
-            gen.append(time.perf_counter() - t)
+            g = time.perf_counter() - t
             t = time.perf_counter()
             merge_files([part], Path(tmp) / f"train{r}.h5", {"complete": True})
-            merge.append(time.perf_counter() - t)
-    # raw: same initial states and controls, plain model, one rollout call
-    m = mujoco.MjModel.from_xml_string(sc.mjcf)
-    d = mujoco.MjData(m)
-    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    init = np.zeros((n_traj, mujoco.mj_stateSize(m, spec)))
-    for i in range(n_traj):
-        mujoco.mj_resetData(m, d)
-        d.qpos[:], d.qvel[:] = fr["qpos"][i, 0], fr["qvel"][i, 0]
-        mujoco.mj_getState(m, d, init[i], spec)
-    ctrl = np.ascontiguousarray(np.repeat(fr["ctrl"], k, axis=1))
-    raw = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        rollout.rollout(m, [d], init, ctrl if m.nu else None, nstep=n_frames * k)
-        raw.append(time.perf_counter() - t)
-    g, r, mg = min(gen), min(raw), min(merge)
+            mg = time.perf_counter() - t
+            init, ctrl = raw_inputs(fr)
+            t = time.perf_counter()
+            rollout.rollout(m, [d], init, ctrl if m.nu else None, nstep=n_frames * k)
+            rw = time.perf_counter() - t
+            if r:
+                gen.append(g)
+                merge.append(mg)
+                raw.append(rw)
+    gen, merge, raw = np.array(gen), np.array(merge), np.array(raw)
     return {
         "scene": name,
         "nodes": sc.inst.partition.n_nodes,
         "bodies": m.nbody - 1,
         "steps": steps,
         "setup_s": setup,
-        "raw": steps / r,
-        "gen": steps / g,
-        "ratio": r / g,
-        "ratio_merged": r / (g + mg),
+        "raw": float(np.median(steps / raw)),
+        "gen": float(np.median(steps / gen)),
+        "ratio": float(np.median(raw / gen)),
+        "ratio_merged": float(np.median(raw / (gen + merge))),
     }
 
 
@@ -102,7 +113,9 @@ def main() -> None:
         help="trajectories per batch (the paper preset's batch)",
     )
     ap.add_argument("--frames", type=int, default=110)
-    ap.add_argument("--repeats", type=int, default=2, help="best of N")
+    ap.add_argument(
+        "--repeats", type=int, default=3, help="paired repeats (median), after a warm-up"
+    )
     a = ap.parse_args()
     print(
         f"{'scene':<26}{'nodes':>6}{'bodies':>7}{'steps':>9}  {'raw steps/s':>12}  {'generation steps/s':>19}  {'ratio':>6}  {'+merge':>7}"

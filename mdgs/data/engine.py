@@ -19,7 +19,7 @@ import mujoco
 import mujoco.batch
 import numpy as np
 
-from mdgs.data.record import RECORD_FIELDS, FrameReducer, Instrumented, instrument
+from mdgs.data.record import KINEMATICS, FrameReducer, Instrumented, instrument
 from mdgs.partition import PartitionParams
 from mdgs.scenes import SceneSpec
 
@@ -36,6 +36,10 @@ __all__ = [
 SPLIT_CODE = {"train": 0, "valid": 1, "test": 2}
 _STATE = mujoco.mjtState.mjSTATE_FULLPHYSICS
 _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
+# share of trajectories in contact under which the lean model (no contact sensors) steps a
+# block: re-running the few in contact costs less than the sensors for all (hysteresis)
+_LEAN_ENTER, _LEAN_STAY = 0.05, 0.15
+_CHUNK_ROWS = 512  # frames per call of the per-frame (not per-step) reductions
 
 
 def rng_for(seed: int, split: str, index: int) -> np.random.Generator:
@@ -73,6 +77,21 @@ def _state_slices(model: mujoco.MjModel) -> dict[str, slice]:
     return out
 
 
+_REDUCERS: dict[tuple[int, int], tuple[Instrumented, FrameReducer]] = {}
+
+
+def _reducer(inst: Instrumented, substeps: int) -> FrameReducer:
+    """The scene's :class:`FrameReducer`, built once per process (its node lookup grids take
+    a while) and reused by every batch."""
+    key = (id(inst), int(substeps))
+    hit = _REDUCERS.get(key)
+    if hit is None or hit[0] is not inst:
+        if len(_REDUCERS) >= 8:
+            _REDUCERS.clear()
+        hit = _REDUCERS[key] = (inst, FrameReducer(inst, substeps))
+    return hit[1]
+
+
 def simulate(
     scene: LoadedScene,
     split: str,
@@ -80,99 +99,143 @@ def simulate(
     seed: int,
     n_frames: int,
     *,
-    frames_per_call: int = 4,
-    reduce_every: int = 10,
+    block_bytes: int = 24 << 20,
 ) -> dict[str, np.ndarray]:
     """Per-frame arrays ``[len(ids), n_frames, ...]`` (see :mod:`mdgs.data.schema`).
 
-    The batch is stepped ``frames_per_call`` frames at a time (one frame at a time for
-    closed-loop controllers, which read the state at each frame), on one thread.
+    The batch is stepped one frame per call, on one thread (closed-loop controllers read
+    the state at each frame), and the per-step records of a block of frames (about
+    ``block_bytes``) are reduced together.
+
+    Contact sensors cost time even when nothing touches, so while few trajectories are
+    in contact the batch steps the instrumented model without them
+    (``Instrumented.lean_model``, identical dynamics) and steps again just the
+    trajectories that had contacts (``ncon > 0``) in the frame, from the saved state,
+    with them, for their sensor data. The recorded values never depend on which model
+    stepped a frame, only the time does.
     """
-    spec, m = scene.spec, scene.inst.model
+    spec, inst = scene.spec, scene.inst
+    m = inst.model
     R, k = len(ids), spec.substeps
     rngs = [rng_for(seed, split, i) for i in ids]
     sl = _state_slices(m)
-    nstate = mujoco.mj_stateSize(m, _STATE)
+    nphys = sl["act"].stop  # time, qpos, qvel, act lead the state vector
     data = mujoco.MjData(m)
-    batch = mujoco.batch.Batch(m, nsim=R, nthread=1)
-    state = np.empty((R, nstate))
+    full = mujoco.batch.Batch(m, nsim=R, nthread=1)
+    lean_m = inst.lean_model
+    lean = mujoco.batch.Batch(lean_m, nsim=R, nthread=1) if lean_m is not None else None
+    if lean is not None and lean.nstate != full.nstate:
+        raise AssertionError("internal: the lean model's state differs from the model's")
     for r, rng in enumerate(rngs):
         mujoco.mj_resetData(m, data)
         spec.builder.initial_state(m, data, rng)
-        mujoco.mj_getState(m, data, batch.state[r], _INTEGRATION)
-        mujoco.mj_getState(m, data, state[r], _STATE)
+        mujoco.mj_getState(m, data, full.state[r], _INTEGRATION)
+    state = full.state[:, :nphys].copy()
     ctrl = spec.builder.controller(m, rngs, n_frames, state[:, sl["qpos"]].copy())
-    fpc = 1 if ctrl.closed_loop else max(1, frames_per_call)
-    # open loop: reduce each call's records in place; closed loop (one frame per call):
-    # frames are recorded straight into a block, numpy's per-call cost is paid per block
-    reduce_frames = max(1, reduce_every)
-    reduce = FrameReducer(scene.inst, k)
-    record = (*RECORD_FIELDS, int(_STATE))
-    out: dict[str, np.ndarray] = {}
-    frames = np.empty((R, n_frames, nstate))
+    reduce = _reducer(inst, k)
+    frames = np.empty((R, n_frames, nphys))
     ctrls = np.empty((R, n_frames, m.nu))
+    out: dict[str, np.ndarray] = {}
+    N = inst.partition.n_nodes
+    loads: dict[str, np.ndarray] = {}  # per-frame loads [R, F, ...]
+    kin = {key: np.empty((R, n_frames) + getattr(data, key).shape) for key in KINEMATICS}
 
-    def store(red: dict, f0: int, f1: int, frame_major: bool) -> None:
-        for key, v in red.items():
-            if key not in out:
-                out[key] = np.empty((R, n_frames) + v.shape[1:], v.dtype)
-            if frame_major:  # rows ordered (frame, trajectory)
-                out[key][:, f0:f1] = np.swapaxes(v.reshape((f1 - f0, R) + v.shape[1:]), 0, 1)
-            else:  # rows ordered (trajectory, frame)
-                out[key][:, f0:f1] = v.reshape((R, f1 - f0) + v.shape[1:])
+    # a block: [frames, R, k, ...] per field, each frame's rows contiguous (rollout's out)
+    lean_d = mujoco.MjData(lean_m) if lean_m is not None else None
+    step_bytes = sum(4 if f == "ncon" else getattr(data, f).nbytes for f in reduce.fields)
+    nfb = int(max(1, min(n_frames, block_bytes // max(1, R * k * step_bytes))))
 
-    bufs: dict | None = None
-    block: dict | None = None  # closed loop: [frames, R, k, ...] so that each frame is contiguous
-    block_start = 0
-    for f0 in range(0, n_frames, fpc):
-        f1 = min(n_frames, f0 + fpc)
-        nf = f1 - f0
-        if ctrl.closed_loop:
-            u = ctrl(f0, state[:, sl["qpos"]], state[:, sl["qvel"]])[:, None, :]
-        else:
-            u = ctrl.block(f0, f1)
-        ctrls[:, f0:f1] = u
-        control = np.repeat(u, k, axis=1) if m.nu else None
-        frames[:, f0] = state
-        if ctrl.closed_loop:
-            j = f0 - block_start
-            rec = batch.rollout(
-                k,
-                control=control,
-                record=record,
-                out=None if block is None else {key: v[j] for key, v in block.items()},
-            )
-            if block is None:
-                block = {
-                    key: np.empty((reduce_frames,) + v.shape, v.dtype) for key, v in rec.items()
-                }
-                for key, v in rec.items():
-                    block[key][0] = v
-            state = rec[int(_STATE)][:, -1].copy()
-            if j + 1 == reduce_frames or f1 == n_frames:
-                rows = j + 1
-                red = reduce.frames(
-                    {key: v[:rows].reshape((rows * R,) + v.shape[2:]) for key, v in block.items()}
+    def buffers(d, fields):
+        return {
+            f: np.empty((nfb, R, k) + np.shape(getattr(d, f)), np.int32 if f == "ncon" else float)
+            for f in fields
+        }
+
+    # per mode (lean: the model without contact sensors): record fields, block buffers
+    record = {False: reduce.fields, True: reduce.lean_fields}
+    bufs = {False: buffers(data, reduce.fields)}
+    if lean is not None:
+        bufs[True] = buffers(lean_d, reduce.lean_fields)
+    use_lean = False  # the first frame tells whether contacts are rare
+    batch = full
+    b0 = 0
+    reruns, rerun_rows = [], []
+    for f in range(n_frames):
+        j = f - b0
+        buf = bufs[use_lean]
+        frames[:, f] = state
+        u = ctrl(f, state[:, sl["qpos"]], state[:, sl["qvel"]]) if ctrl.closed_loop else ctrl(f)
+        ctrls[:, f] = u
+        control = np.repeat(u[:, None, :], k, axis=1) if m.nu else None
+        saved = batch.state.copy() if use_lean else None
+        rec = batch.rollout(
+            k, control=control, record=record[use_lean], out={key: v[j] for key, v in buf.items()}
+        )
+        want = use_lean
+        if lean is not None:
+            hit = np.flatnonzero(rec["ncon"].any(1))
+            if use_lean and len(hit):  # contacts: the same steps again, with the sensors
+                full.state[hit] = saved[hit]
+                reruns.append(
+                    full.rollout(
+                        k,
+                        control=None if control is None else control[hit],
+                        record=reduce.contact_fields,
+                        ids=hit.astype(np.int32),
+                    )
                 )
-                store(red, block_start, f1, frame_major=True)
-                block_start = f1
+                if not np.array_equal(full.state[hit], batch.state[hit]):
+                    raise AssertionError("internal: the lean model's dynamics differ")
+                rerun_rows.append(j * R + hit)
+            # the cheaper model for the contacts of this frame, with hysteresis
+            want = len(hit) <= R * (_LEAN_STAY if use_lean else _LEAN_ENTER)
+        state = batch.state[:, :nphys].copy()
+        if j + 1 < nfb and f + 1 < n_frames and want == use_lean:
+            continue
+        # reduce the block [b0, f]: per-frame loads, frame-start fields
+        nf = j + 1
+        rec = {key: v[:nf].reshape((nf * R,) + v.shape[2:]) for key, v in buf.items()}
+        if use_lean:
+            rows = np.concatenate(rerun_rows) if reruns else np.zeros(0, int)
+            contact = {
+                key: np.concatenate([c[key] for c in reruns]) if reruns else None
+                for key in reduce.contact_fields
+            }
+            lo = reduce.loads(rec, contact, rows)
         else:
-            reuse = bufs if (bufs is not None and nf == fpc) else None
-            rec = batch.rollout(nf * k, control=control, record=record, out=reuse)
-            if nf == fpc:
-                bufs = rec  # output buffers reused by every full-size call (no page faults)
-            st = rec[int(_STATE)]
-            if nf > 1:
-                frames[:, f0 + 1 : f1] = st[:, k - 1 : (nf - 1) * k : k]
-            state = st[:, -1].copy()
-            store(
-                reduce.frames(
-                    {key: v.reshape((R * nf, k) + v.shape[2:]) for key, v in rec.items()}
-                ),
-                f0,
-                f1,
-                frame_major=False,
-            )
+            lo = reduce.loads(rec)
+        for key, v in lo.items():
+            if v is None:
+                continue
+            if key not in loads:
+                loads[key] = np.zeros((R, n_frames) + v.shape[1:], v.dtype)
+            loads[key][:, b0 : f + 1] = np.swapaxes(v.reshape((nf, R) + v.shape[1:]), 0, 1)
+        for key in KINEMATICS:
+            kin[key][:, b0 : f + 1] = np.swapaxes(buf[key][:nf, :, 0], 0, 1)
+        b0 = f + 1
+        reruns, rerun_rows = [], []
+        if want != use_lean:
+            (lean if want else full).state[:] = batch.state
+            use_lean, batch = want, (lean if want else full)
+
+    # whole frames, a few trajectories at a time: actuator and joint loads, kinematics
+    node_cf = loads.pop("node_cf", None)
+    out["node_contact_force"] = np.zeros((R, n_frames, N, 3)) if node_cf is None else node_cf
+    per = max(1, _CHUNK_ROWS // n_frames)
+    for r0 in range(0, R, per):
+        r1 = min(R, r0 + per)
+        X = (r1 - r0) * n_frames
+
+        def rows(v, r0=r0, r1=r1, X=X):
+            return v[r0:r1].reshape((X,) + v.shape[2:])
+
+        views = {key: rows(v) for key, v in out.items()}
+        res = reduce.finish({key: rows(v) for key, v in loads.items()}, out=views)
+        res = reduce.kinematics(*(rows(kin[key]) for key in KINEMATICS), out=res)
+        for key, v in res.items():
+            if key not in out:  # first chunk: allocate the output, then fill it
+                out[key] = np.empty((R, n_frames) + v.shape[1:], v.dtype)
+                rows(out[key])[...] = v
     out["time"] = frames[:, :, sl["time"]][..., 0]
     out["qpos"] = frames[:, :, sl["qpos"]]
     out["qvel"] = frames[:, :, sl["qvel"]]

@@ -29,18 +29,19 @@ from mdgs.data.schema import (
 
 __all__ = ["write_file", "merge_files", "open_dataset", "Dataset", "atomic_path", "sha256_text"]
 
-# Sparse arrays (mostly zeros) compress well (LZF: fast, built into h5py); dense
-# kinematics are stored raw, which is faster to write and read.
+# Sparse arrays (mostly zeros) are compressed with LZF (fast, built into h5py; without
+# the shuffle filter, which makes LZF both slower and larger on them); dense kinematics,
+# controls and actuator torques are stored raw, which is faster to write and read. A
+# chunk (one trajectory) that holds only zeros is not stored at all: HDF5 reads it as
+# the fill value, 0 (a stored chunk always carries its fletcher32 checksum).
 _COMPRESSED = {
     "node_contact_force",
     "node_joint_force",
     "body_contact_force",
     "body_contact_torque",
     "body_actuator_force",
-    "body_actuator_torque",
     "contact_overflow",
     "contact_count",
-    "ctrl",
     "act",
 }
 _LIBVER = ("v110", "v110")
@@ -68,9 +69,33 @@ def _dataset_kwargs(name: str, shape: tuple[int, ...]) -> dict:
     kw = {"fletcher32": True, "track_times": False}
     if len(shape) >= 2 and shape[0] > 0 and all(shape):
         kw["chunks"] = (1,) + tuple(shape[1:])
+        kw["fillvalue"] = 0
         if name in _COMPRESSED:
-            kw.update(compression="lzf", shuffle=True)  # h5py's fast filter; ~2x on sparse loads
+            kw["compression"] = "lzf"
     return kw
+
+
+def _write_rows(d: h5py.Dataset, a: np.ndarray, row: int = 0) -> None:
+    """Write ``a`` at ``row`` of the chunked (one row per chunk) dataset ``d``, skipping all-zero rows."""
+    nonzero = a.reshape(a.shape[0], -1).any(1)
+    if nonzero.all():
+        d[row : row + len(a)] = a
+        return
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], nonzero.view(np.int8), [0]])))
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        d[row + start : row + stop] = a[start:stop]
+
+
+def _same_storage(src: h5py.Dataset, dst: h5py.Dataset) -> bool:
+    """Whether ``src``'s stored chunks can be copied verbatim into ``dst`` (same chunks and filters)."""
+    return (
+        dst.chunks is not None
+        and src.chunks == dst.chunks
+        and src.compression == dst.compression
+        and src.shuffle == dst.shuffle
+        and src.fletcher32 == dst.fletcher32
+        and src.dtype == dst.dtype
+    )
 
 
 def _set_attrs(f: h5py.File, attrs: dict) -> None:
@@ -103,7 +128,11 @@ def write_file(path: Path, attrs: dict, mjcf: str, static: dict, frames: dict) -
         g = f.create_group("frames")
         for spec in FRAME_ARRAYS:
             a = np.ascontiguousarray(frames[spec.name], dtype=spec.dtype)
-            g.create_dataset(spec.name, data=a, **_dataset_kwargs(spec.name, a.shape))
+            kw = _dataset_kwargs(spec.name, a.shape)
+            if "chunks" in kw and not a.reshape(a.shape[0], -1).any(1).all():
+                _write_rows(g.create_dataset(spec.name, shape=a.shape, dtype=a.dtype, **kw), a)
+            else:
+                g.create_dataset(spec.name, data=a, **kw)
 
 
 def merge_files(parts: Sequence[Path], path: Path, attrs: dict) -> None:
@@ -147,11 +176,14 @@ def merge_files(parts: Sequence[Path], path: Path, attrs: dict) -> None:
                 for s in srcs:
                     src = s["frames"][spec.name]
                     n = src.shape[0]
-                    if dst.chunks is not None and src.chunks == dst.chunks and 0 not in src.shape:
-                        zeros = (0,) * (len(shape) - 1)
-                        for i in range(n):
-                            mask, data = src.id.read_direct_chunk((i, *zeros))
-                            dst.id.write_direct_chunk((row + i, *zeros), data, mask)
+                    if _same_storage(src, dst) and 0 not in src.shape:
+                        # the stored chunks, verbatim (all-zero rows are not stored)
+                        for j in range(src.id.get_num_chunks()):
+                            at = src.id.get_chunk_info(j).chunk_offset
+                            mask, data = src.id.read_direct_chunk(at)
+                            dst.id.write_direct_chunk((row + at[0], *at[1:]), data, mask)
+                    elif n and dst.chunks is not None:
+                        _write_rows(dst, src[()], row)
                     elif n:
                         dst[row : row + n] = src[()]
                     row += n

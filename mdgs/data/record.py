@@ -121,6 +121,11 @@ class Instrumented:
     act_joints: np.ndarray  # [J] hinge/slide joints that actuators drive
     anchor_node: np.ndarray  # [nbody] node of b nearest its own joint anchor (-1: none)
     child_anchor_node: np.ndarray  # [nbody] node of parent(b) nearest b's joint anchor (-1: none)
+    lean_model: mujoco.MjModel | None = None
+    """``model`` without the contact sensors (None if it has none): the same dynamics, bit for
+    bit (sensors only read the state), and ``model``'s sensordata up to the contact sensors.
+    Contact-free steps are stepped with it, skipping the contact sensors' cost (see
+    :func:`mdgs.data.engine.simulate`)."""
 
     @property
     def nbody(self) -> int:
@@ -203,6 +208,7 @@ def instrument(
 
     for i in range(1, base.nbody):  # MuJoCo's com acceleration; triggers mj_rnePostConstraint
         add("linacc", i, _S.mjSENS_FRAMELINACC, _O.mjOBJ_BODY, bodies[i].name)
+    lean = _compile(spec) if collides.any() else None
     for i in np.flatnonzero(collides):
         add(
             "slots",
@@ -236,6 +242,7 @@ def instrument(
         act_joints=np.array(sorted(_actuated_joints(base)), int),
         anchor_node=anchor,
         child_anchor_node=child_anchor,
+        lean_model=lean,
     )
 
 
@@ -399,6 +406,111 @@ class _NearestNode:
         return self.nodes[out]
 
 
+class _Locator:
+    """:class:`_NearestNode` of several bodies at once: points ``p`` of bodies ``which``."""
+
+    def __init__(self, finders: list[_NearestNode]):
+        self.finders = finders
+        self.lo = np.array([f.lo for f in finders]).T.copy()  # [3, C]
+        self.h = np.array([f.h for f in finders]).T.copy()
+        self.res = np.array([f.res for f in finders], np.int64)
+        sizes = np.array([len(f.table) for f in finders], np.int64)
+        self.table_off = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+        self.table = (
+            np.concatenate([f.table for f in finders]) if finders else np.zeros(0, np.int64)
+        )
+        counts = np.array([len(f.nodes) for f in finders], np.int64)
+        self.node_off = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+        self.nodes = (
+            np.concatenate([f.nodes for f in finders]) if finders else np.zeros(0, np.int64)
+        )
+
+    def __call__(self, p, which: np.ndarray) -> np.ndarray:
+        """Global node ids of the points ``p`` (3 arrays, body frames) of bodies ``which``."""
+        res = self.res[which]
+        ijk = [
+            np.floor((p[i] - self.lo[i][which]) / self.h[i][which]).astype(np.int64)
+            for i in range(3)
+        ]
+        inside = (
+            (ijk[0] >= 0)
+            & (ijk[0] < res)
+            & (ijk[1] >= 0)
+            & (ijk[1] < res)
+            & (ijk[2] >= 0)
+            & (ijk[2] < res)
+        )
+        local = np.full(p[0].shape[0], -1, np.int64)
+        flat = (ijk[0] * res + ijk[1]) * res + ijk[2] + self.table_off[which]
+        local[inside] = self.table[flat[inside]]
+        miss = np.flatnonzero(local < 0)
+        if len(miss):
+            for j in np.unique(which[miss]):
+                sel = miss[which[miss] == j]
+                local[sel] = self.finders[j]._exact(tuple(c[sel] for c in p))
+        return self.nodes[local + self.node_off[which]]
+
+
+def _index(a: np.ndarray):
+    """``a`` as a slice when it is a run of consecutive integers (a view instead of a copy)."""
+    a = np.asarray(a, np.int64)
+    if len(a) and np.array_equal(a, np.arange(a[0], a[0] + len(a))):
+        return slice(int(a[0]), int(a[0]) + len(a))
+    return a
+
+
+def _rank_groups(targets: np.ndarray, sources: np.ndarray) -> list[tuple]:
+    """Split ``x[targets[i]] -= y[sources[i]]`` (in order) into steps with distinct targets.
+
+    Step ``r`` holds each target's ``r``-th operation, so every target sees its operations
+    in the original order; each step is cut into runs of consecutive targets and sources,
+    which index as slices (views) rather than gathers.
+    """
+    rank = np.zeros(len(targets), int)
+    seen: dict[int, int] = {}
+    for i, t in enumerate(targets):
+        rank[i] = seen.get(int(t), 0)
+        seen[int(t)] = rank[i] + 1
+    steps = []
+    for r in range(int(rank.max()) + 1 if len(rank) else 0):
+        tg, sg = targets[rank == r], sources[rank == r]
+        cut = np.flatnonzero((np.diff(tg) != 1) | (np.diff(sg) != 1)) + 1
+        steps += [
+            (slice(int(t[0]), int(t[-1]) + 1), slice(int(u[0]), int(u[-1]) + 1))
+            for t, u in zip(np.split(tg, cut), np.split(sg, cut), strict=True)
+        ]
+    return steps
+
+
+def _ksum(a: np.ndarray, axis: int) -> np.ndarray:
+    """Sum over the steps axis, adding step after step (the same bits for any batch).
+
+    ``einsum`` runs this reduction several times faster than ``sum`` when the axes after
+    ``axis`` are short; with nothing after ``axis`` (``sum`` would switch to pairwise
+    summation) the steps are added one by one.
+    """
+    if int(np.prod(a.shape[axis + 1 :])) <= 1:
+        pre = (slice(None),) * axis
+        acc = a[pre + (0,)].copy()
+        for i in range(1, a.shape[axis]):
+            acc += a[pre + (i,)]
+        return acc
+    sub = "abcdefgh"[: a.ndim]
+    return np.einsum(f"{sub}->{sub[:axis]}{sub[axis + 1 :]}", a)
+
+
+def _cross_sum(r: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """``r x f`` summed over the steps, for component-first arrays ``[3, X, k, B]``: ``[3, X, B]``."""
+    out = np.empty_like(f)
+    tmp = np.empty_like(f[0])
+    for i in range(3):
+        j, l = (i + 1) % 3, (i + 2) % 3
+        np.multiply(r[j], f[l], out=out[i])
+        np.multiply(r[l], f[j], out=tmp)
+        out[i] -= tmp
+    return _ksum(out, 2)
+
+
 RECORD_FIELDS = (
     "xpos",
     "xquat",
@@ -411,18 +523,29 @@ RECORD_FIELDS = (
     "xaxis",
     "xanchor",
     "sensordata",
+    "ncon",
 )
-"""MjData fields the batch records after every step (besides the physics state)."""
+"""MjData fields the batch may record after every step (:attr:`FrameReducer.fields` are
+those a scene needs: no actuator fields without actuated joints, ``xanchor`` only for
+actuated slide joints, ``ncon`` only with contact sensors)."""
+
+KINEMATICS = ("xpos", "xquat", "xipos", "cvel", "subtree_com")
+"""Fields read at a frame's first step only (the frame's kinematics)."""
 
 
 class FrameReducer:
-    """Turns per-step records ``{field: [R, F * k, ...]}`` into per-frame arrays ``[R, F, ...]``.
+    """Per-step records ``{field: [X, k, ...]}`` (``X`` frames of ``k`` steps) -> frames.
 
     Loads are means over each frame's ``k`` steps; kinematics are read at the frame's
     first step. MuJoCo's wrenches share one reference point per tree (the root's
-    subtree centre of mass ``c``), so sums over bodies are linear and done on frame
-    means; only the move to each body's centre of mass, ``tau + (c - com) x f``, and
-    the contact rows are computed per step, where ``c - com`` changes.
+    subtree centre of mass ``c``); the move of a wrench to the body's centre of mass,
+    ``tau + (c - com) x f``, is the only per-step product, everything linear is summed
+    over the steps first (joint loads: the parent's wrench minus what the body passes
+    to its children). Every reduction is per frame, so frames never mix.
+
+    :meth:`loads` reduces the per-step fields, :meth:`kinematics` the first-step ones and
+    :meth:`finish` splits actuator loads from joint loads and puts joint forces on nodes;
+    :meth:`frames` chains them.
     """
 
     def __init__(self, inst: Instrumented, substeps: int):
@@ -430,6 +553,7 @@ class FrameReducer:
         self.k = int(substeps)
         m = inst.model
         self.nb = nb = m.nbody
+        self.B = nb - 1
         self.g = np.array(m.opt.gravity, float)
         self.root = m.body_rootid.copy()
         part = inst.partition
@@ -438,216 +562,303 @@ class FrameReducer:
         self.N = part.body.shape[0]
         par = m.body_parentid.copy()
         self.parent = par
-        self.children = np.array([b for b in range(1, nb) if par[b] != 0], int)
+        # runs of consecutive bodies of one tree: c - com without gathering c per body
+        self.trees = []
+        b = 1
+        while b < nb:
+            e = b + 1
+            while e < nb and self.root[e] == self.root[b]:
+                e += 1
+            self.trees.append((int(self.root[b]), b, e))
+            b = e
+        children = np.array([b for b in range(1, nb) if par[b] != 0], int)
+        self.child_groups = _rank_groups(par[children] - 1, children - 1)  # 0-based bodies 1..
         j = inst.act_joints
         self.act_joint = j
-        self.act_dof = m.jnt_dofadr[j].astype(int)
+        self.act_dof = _index(m.jnt_dofadr[j])
+        self.act_jnt = _index(j)
         self.act_body = m.jnt_bodyid[j].astype(int)
         self.act_parent = par[self.act_body]
         self.act_slide = m.jnt_type[j] == int(_J.mjJNT_SLIDE)
-        self.lin0 = int(inst.linacc[1, 0])
+        self.lin0 = int(inst.linacc[1, 0]) if nb > 1 else 0
         if not np.array_equal(inst.linacc[1:].ravel(), self.lin0 + np.arange(3 * (nb - 1))):
             raise AssertionError("internal: acceleration sensors are not contiguous")
         self.cb = np.flatnonzero(inst.has_contact_sensor)  # bodies with contact sensors
-        if len(self.cb):
-            self.slot0 = int(inst.slots[self.cb[0], 0, 0])
-            self.nslot = inst.slots.shape[1]
-            if not np.array_equal(
-                inst.slots[self.cb, 0, 0], self.slot0 + 13 * self.nslot * np.arange(len(self.cb))
-            ):
-                raise AssertionError("internal: contact sensors are not contiguous")
-        self.locators = {
-            int(b): _NearestNode(
-                part.centroid[part.nodes_of(b)], part.nodes_of(b), part.tau[part.nodes_of(b)]
-            )
-            for b in self.cb
-        }
+        self.C = len(self.cb)
+        self.nslot = inst.slots.shape[1]
+        self.slot0 = int(inst.slots[self.cb[0], 0, 0]) if self.C else 0
+        if self.C and not np.array_equal(
+            inst.slots[self.cb, 0, 0], self.slot0 + 13 * self.nslot * np.arange(self.C)
+        ):
+            raise AssertionError("internal: contact sensors are not contiguous")
+        self.slot_cols = slice(self.slot0, self.slot0 + 13 * self.nslot * self.C)
+        self.locate = _Locator(
+            [
+                _NearestNode(
+                    part.centroid[part.nodes_of(b)], part.nodes_of(b), part.tau[part.nodes_of(b)]
+                )
+                for b in self.cb
+            ]
+        )
         has_anchor = inst.anchor_node >= 0
         self.jf_src, self.jf_dst = np.flatnonzero(has_anchor), inst.anchor_node[has_anchor]
         has_child = inst.child_anchor_node >= 0
         self.jr_src, self.jr_dst = np.flatnonzero(has_child), inst.child_anchor_node[has_child]
+        fields = ["xpos", "xquat", "xipos", "subtree_com", "cvel", "cfrc_int", "cfrc_ext"]
+        if len(j):
+            fields += ["qfrc_actuator", "xaxis"] + (["xanchor"] if self.act_slide.any() else [])
+        fields += ["sensordata"] + (["ncon"] if self.C else [])
+        self.fields = tuple(fields)
+        """The MjData fields :meth:`loads` and :meth:`kinematics` read, to record every step."""
+        self.lean_fields = tuple(f for f in fields if f != "cfrc_ext")
+        """:attr:`fields` but the contact ones (the lean model, see :meth:`loads`)."""
+        self.contact_fields = ("sensordata", "cfrc_ext")
 
-    def __call__(self, rec: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """Records ``[R, F * k, ...]`` -> frames ``[R, F, ...]``."""
-        R_, n = rec["xpos"].shape[:2]
-        out = self.frames(
-            {key: v.reshape((R_ * (n // self.k), self.k) + v.shape[2:]) for key, v in rec.items()}
-        )
-        return {key: v.reshape((R_, n // self.k) + v.shape[1:]) for key, v in out.items()}
+    # -- per-step fields -------------------------------------------------------------
+    def loads(
+        self,
+        rec: dict[str, np.ndarray],
+        contact: dict[str, np.ndarray] | None = None,
+        rows: np.ndarray | None = None,
+    ) -> dict[str, np.ndarray]:
+        """Per-step records ``[X, k, ...]`` -> per-frame loads ``[X, ...]``.
 
-    def frames(self, rec: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """Records ``[X, k, ...]`` (X frames of k steps each) -> frames ``[X, ...]``."""
-        k, nb, N = self.k, self.nb, self.N
-        X = rec["xpos"].shape[0]
-
-        def steps(name):  # [X, k, ...]
-            return rec[name]
-
-        def comp(a, i):  # component i of the last axis: [X, k, nb]
-            return a[..., i]
-
-        xipos, sub = steps("xipos"), steps("subtree_com")
-        cint, cext = steps("cfrc_int"), steps("cfrc_ext")
-        # r = c - com: from each body's centre of mass to its tree's reference point
-        r = tuple(np.ascontiguousarray(sub[:, :, self.root, i] - xipos[..., i]) for i in range(3))
-        f_int = tuple(np.ascontiguousarray(cint[..., 3 + i]) for i in range(3))
-        f_ext = tuple(np.ascontiguousarray(cext[..., 3 + i]) for i in range(3))
-
-        # joints: the parent's wrench minus what b passes to its children (about c), per step
-        Jf = [a.copy() for a in f_int]
-        Jt = [np.ascontiguousarray(cint[..., i]) for i in range(3)]
-        for c in self.children:
-            p = self.parent[c]
-            for i in range(3):
-                Jf[i][:, :, p] -= f_int[i][:, :, c]
-                Jt[i][:, :, p] -= cint[:, :, c, i]
-        # about the body's centre of mass: tau + (c - com) x f, then frame means
-        mean = lambda v: _aos(_mean(v))  # noqa: E731  [X, nb, 3]
-        joint_f, joint_t = mean(Jf), mean(_add(Jt, _cross(r, Jf)))
-        if np.any(cext):
-            ext_t = _add(tuple(comp(cext, i) for i in range(3)), _cross(r, f_ext))
-            contact_f, contact_t = mean(f_ext), mean(ext_t)
-        else:  # nothing touched anything in this block
-            contact_f = contact_t = np.zeros((X, nb, 3))
-
-        # actuators on scalar joints: + on the joint's body, - on its parent
-        Fa = np.zeros((X, nb, 3))
-        Ta = np.zeros((X, nb, 3))
-        if len(self.act_joint):
-            tau = steps("qfrc_actuator")[:, :, self.act_dof]  # [X, k, J]
-            axis = steps("xaxis")[:, :, self.act_joint]  # [X, k, J, 3] world
-            gen = tuple(tau * axis[..., i] for i in range(3))
-            gm = mean(gen)
-            if self.act_slide.any():
-                anchor = steps("xanchor")[:, :, self.act_joint]
-                arm_b = mean(
-                    _cross(
-                        tuple(anchor[..., i] - xipos[:, :, self.act_body, i] for i in range(3)), gen
-                    )
-                )
-                arm_p = mean(
-                    _cross(
-                        tuple(anchor[..., i] - xipos[:, :, self.act_parent, i] for i in range(3)),
-                        gen,
-                    )
-                )
-            for j in range(len(self.act_joint)):
-                b, pb = self.act_body[j], self.act_parent[j]
-                if self.act_slide[j]:
-                    Fa[:, b] += gm[:, j]
-                    Ta[:, b] += arm_b[:, j]
-                    Fa[:, pb] -= gm[:, j]
-                    Ta[:, pb] -= arm_p[:, j]
-                else:
-                    Ta[:, b] += gm[:, j]
-                    Ta[:, pb] -= gm[:, j]
-
-        # contact forces per node, from the individual contacts
-        sd = steps("sensordata")
-        node_cf = np.zeros((X * N, 3))
-        overflow = np.zeros(X, np.int64)
-        ncontact = np.zeros(X)
-        touched = (
-            np.flatnonzero(np.abs(contact_f[:, self.cb]).sum((0, 2)) > 0)
-            if len(self.cb)
-            else np.zeros(0, int)
-        )
-        if len(touched):
-            C = len(self.cb)
-            sl = sd[:, :, self.slot0 : self.slot0 + 13 * self.nslot * C].reshape(
-                X, k, C, self.nslot, 13
-            )[:, :, touched]
-            cb = self.cb[touched]
-            found = sl[..., 0, 0]  # [X, k, C'] matched contacts per body
-            overflow = (found > self.nslot).sum((1, 2))
-            ncontact = np.minimum(found, self.nslot).sum((1, 2)) / k
-            xi, ki, ci, si = np.nonzero(sl[..., 0] > 0)
-            row = _soa(sl[xi, ki, ci, si])  # 13 x [n]
-            nrm, t1 = row[7:10], row[10:13]
-            t2 = _cross(nrm, t1)
-            fb = [-(row[1] * nrm[i] + row[2] * t1[i] + row[3] * t2[i]) for i in range(3)]
-            pw = [row[4 + i] for i in range(3)]
-            over = np.nonzero(found > self.nslot)
-            if len(over[0]):
-                # more contacts than slots: the rest of the body's contact force acts at the
-                # mean of its reported contact points (node forces still sum to the body's)
-                flat = (xi * k + ki) * len(cb) + ci
-                size = X * k * len(cb)
-                cnt = np.bincount(flat, minlength=size).reshape(X, k, -1)[over]
-                rest = [
-                    f_ext[i][:, :, cb][over]
-                    - np.bincount(flat, fb[i], size).reshape(X, k, -1)[over]
-                    for i in range(3)
-                ]
-                at = [
-                    np.bincount(flat, pw[i], size).reshape(X, k, -1)[over] / cnt for i in range(3)
-                ]
-                xi, ki, ci = (
-                    np.concatenate([a, b]) for a, b in zip((xi, ki, ci), over, strict=True)
-                )
-                fb = [np.concatenate([fb[i], rest[i]]) for i in range(3)]
-                pw = [np.concatenate([pw[i], at[i]]) for i in range(3)]
-            if len(xi):
-                body = cb[ci]
-                xpos, xquat = steps("xpos"), steps("xquat")
-                q = tuple(xquat[xi, ki, body, i] for i in range(4))
-                local = _qrot(
-                    q, tuple(pw[i] - xpos[xi, ki, body, i] for i in range(3)), inverse=True
-                )
-                near = np.empty(len(xi), np.int64)
-                for j, bb in enumerate(cb):
-                    sel = np.flatnonzero(ci == j)
-                    if len(sel):
-                        near[sel] = self.locators[int(bb)](tuple(c[sel] for c in local))
-                idx = xi * N + near
-                node_cf = np.stack([np.bincount(idx, fb[i], X * N) for i in range(3)], -1) / k
-        node_cf = node_cf.reshape(X, N, 3)
-
-        # joint forces per node: from the parent at b's anchor node, reactions at the parent's
-        fint_m = mean(f_int)
-        node_jf = np.zeros((X, N, 3))
-        np.add.at(node_jf, (slice(None), self.jf_dst), fint_m[:, self.jf_src])
-        np.add.at(node_jf, (slice(None), self.jr_dst), -fint_m[:, self.jr_src])
-
-        # kinematics at the frame (its first step); velocities from cvel at the reference point
-        p0, q0, c0 = steps("xpos")[:, 0], steps("xquat")[:, 0], xipos[:, 0]
-        cv = steps("cvel")[:, 0]  # [X, nb, 6] (angular; linear at c)
-        w0 = cv[..., 0:3]
-        v0 = cv[..., 3:6] + np.cross(w0, c0 - sub[:, 0, self.root])
-        nbd = self.node_body
-        node_pos = _add(
-            tuple(p0[:, nbd, i] for i in range(3)),
-            _qrot(tuple(q0[:, nbd, i] for i in range(4)), self.node_c),
-        )
-        arm = tuple(node_pos[i] - c0[:, nbd, i] for i in range(3))
-        node_vel = _aos(
-            _add(
-                tuple(v0[:, nbd, i] for i in range(3)),
-                _cross(tuple(w0[:, nbd, i] for i in range(3)), arm),
+        The contact fields (:attr:`contact_fields`, the model's full sensordata) come from
+        ``rec``, or from ``contact`` (``[len(rows), k, ...]``) for frames ``rows`` only,
+        the others having had no contact. Per-step products run on component-first
+        copies ``[3, X, k, B]``.
+        """
+        k, B = self.k, self.B
+        cint = rec["cfrc_int"]
+        X = cint.shape[0]
+        if rows is None:
+            contact, rows = rec, np.arange(X)
+        xipos, sub = rec["xipos"], rec["subtree_com"]
+        # r = c - com
+        r = np.empty((3, X, k, B))
+        for root, lo, hi in self.trees:
+            np.subtract(
+                np.moveaxis(sub[:, :, root : root + 1], -1, 0),
+                np.moveaxis(xipos[:, :, lo:hi], -1, 0),
+                out=r[..., lo - 1 : hi - 1],
             )
-        )
-        node_pos = _aos(node_pos)
-        lin = sd[:, :, self.lin0 : self.lin0 + 3 * (nb - 1)]
-        acc = lin.mean(1).reshape(X, nb - 1, 3) + self.g
-
+        # joints: the parent's wrench on b minus what b passes to its children
+        W = _ksum(cint[:, :, 1:], 1)  # [X, B, 6] sums over the steps (about c)
+        fint = W[..., 3:] / k
+        Jw = W.copy()
+        F0 = np.empty((3, X, k, B))
+        np.copyto(F0, np.moveaxis(cint[:, :, 1:, 3:], -1, 0))
+        Jf = F0.copy() if self.child_groups else F0
+        for tg, sg in self.child_groups:
+            Jw[:, tg] -= W[:, sg]
+            Jf[..., tg] -= F0[..., sg]
+        joint = np.empty((X, B, 6))
+        np.divide(Jw[..., :3] + np.moveaxis(_cross_sum(r, Jf), 0, -1), k, out=joint[..., :3])
+        np.divide(Jw[..., 3:], k, out=joint[..., 3:])
+        # contacts (the only external loads): per step only for bodies with a force
+        wrench = np.zeros((X, B, 6))
+        cext = contact["cfrc_ext"] if len(rows) else None
+        if cext is not None and cext.any():
+            E = _ksum(cext[:, :, 1:], 1)
+            cw = np.divide(E, k)
+            nz = np.abs(cext[:, :, 1:, 3:].reshape(-1, 3 * B)).max(0).reshape(B, 3)
+            touched = np.flatnonzero(nz.max(1) > 0)
+            if len(touched):
+                tb = _index(touched)
+                fe = np.empty((3, len(rows), k, len(touched)))
+                np.copyto(fe, np.moveaxis(cext[:, :, 1:][:, :, tb, 3:], -1, 0))
+                rc = r[..., tb] if len(rows) == X else r[:, rows][..., tb]
+                cr = np.moveaxis(_cross_sum(rc, fe), 0, -1)
+                cw[:, tb, :3] = (E[:, tb, :3] + cr) / k
+            wrench[rows] = cw
+        sd = rec["sensordata"]
+        acc = _ksum(sd[:, :, self.lin0 : self.lin0 + 3 * B], 1) / k
         out = {
-            "body_pos": p0[:, 1:],
-            "body_quat": q0[:, 1:],
-            "body_com": c0[:, 1:],
+            "joint": joint,
+            "fint": fint,
+            "contact": wrench,
+            "acc": acc.reshape(X, B, 3) + self.g,
+        }
+        # actuators on scalar joints: generalized force along the joint axis
+        if len(self.act_joint):
+            tau = rec["qfrc_actuator"][:, :, self.act_dof]  # [X, k, J]
+            gen = np.empty((3, X, k, len(self.act_joint)))
+            np.copyto(gen, np.moveaxis(rec["xaxis"][:, :, self.act_jnt], -1, 0))  # world axes
+            gen *= tau
+            out["gen"] = np.moveaxis(_ksum(gen, 2), 0, -1) / k
+            if self.act_slide.any():
+                anchor = rec["xanchor"][:, :, self.act_jnt]
+                for key, bodies in (("arm_b", self.act_body), ("arm_p", self.act_parent)):
+                    out[key] = _aos(
+                        _mean(
+                            _cross(
+                                tuple(anchor[..., i] - xipos[:, :, bodies, i] for i in range(3)),
+                                tuple(gen),
+                            )
+                        )
+                    )
+        out.update(self._contacts(rec, contact, rows, X))
+        return out
+
+    def _contacts(self, rec, contact, rows, X) -> dict[str, np.ndarray]:
+        """Contact forces per node from the individual contacts, contact counts."""
+        k, N, C, ns = self.k, self.N, self.C, self.nslot
+        count = np.zeros(X)
+        overflow = np.zeros(X, np.int64)
+        out = {"contact_count": count, "contact_overflow": overflow, "node_cf": None}
+        if not C or not len(rows):
+            return out
+        sd = np.ascontiguousarray(contact["sensordata"])
+        flat, stride, base = sd.reshape(-1), sd.shape[-1], self.slot0
+        Xs = len(rows)
+        found = flat.reshape(Xs * k, stride)[:, base : base + 13 * ns * C : 13 * ns]  # [Xs k, C]
+        nuse = np.minimum(found, ns)
+        count[rows] = nuse.reshape(Xs, k * C).sum(1) / k
+        overflow[rows] = (found > ns).reshape(Xs, k * C).sum(1)
+        # slots s < min(found, ns) hold a contact (MuJoCo fills them in order)
+        xk, ci = np.nonzero(found > 0)
+        if not len(xk):
+            return out
+        m = nuse[xk, ci].astype(np.int64)
+        first = np.cumsum(m) - m
+        xk, ci = np.repeat(xk, m), np.repeat(ci, m)
+        si = np.arange(len(xk)) - np.repeat(first, m)
+        # found, force (contact frame), pos, normal, tangent
+        row = flat.reshape(Xs * k, stride)[:, base : base + 13 * ns * C].reshape(Xs * k, ns * C, 13)
+        row = row[xk, ci * ns + si]  # [n, 13]
+        col = [row[:, j] for j in range(13)]
+        nrm, t1 = col[7:10], col[10:13]
+        t2 = _cross(nrm, t1)
+        fb = [-(col[1] * nrm[i] + col[2] * t1[i] + col[3] * t2[i]) for i in range(3)]  # on the body
+        pw = col[4:7]
+        xi, ki = np.divmod(xk, k)
+        xs = rows[xi]
+        over = np.nonzero((found > ns).reshape(Xs, k, C))
+        if len(over[0]):
+            # more contacts than slots: the rest of the body's contact force acts at the
+            # mean of its reported contact points (node forces still sum to the body's)
+            fl = xk * C + ci
+            size = Xs * k * C
+            cnt = np.bincount(fl, minlength=size).reshape(-1, k, C)[over]
+            fo = contact["cfrc_ext"][over[0], over[1], self.cb[over[2]], 3:]
+            rest = [
+                fo[:, i] - np.bincount(fl, fb[i], size).reshape(-1, k, C)[over] for i in range(3)
+            ]
+            mean_at = [np.bincount(fl, pw[i], size).reshape(-1, k, C)[over] / cnt for i in range(3)]
+            xs = np.concatenate([xs, rows[over[0]]])
+            ki = np.concatenate([ki, over[1]])
+            ci = np.concatenate([ci, over[2]])
+            fb = [np.concatenate([fb[i], rest[i]]) for i in range(3)]
+            pw = [np.concatenate([pw[i], mean_at[i]]) for i in range(3)]
+        at = (xs * k + ki) * self.nb + self.cb[ci]  # (frame, step, body) rows of xpos/xquat
+        p = np.take(rec["xpos"].reshape(-1, 3), at, axis=0).T
+        q = np.take(rec["xquat"].reshape(-1, 4), at, axis=0).T
+        local = _qrot(tuple(q), tuple(pw[i] - p[i] for i in range(3)), inverse=True)
+        idx = xs * N + self.locate(local, ci)
+        node_cf = np.stack([np.bincount(idx, fb[i], X * N) for i in range(3)], -1) / k
+        out["node_cf"] = node_cf.reshape(X, N, 3)
+        return out
+
+    # -- first-step fields -----------------------------------------------------------
+    def kinematics(
+        self,
+        xpos: np.ndarray,
+        xquat: np.ndarray,
+        xipos: np.ndarray,
+        cvel: np.ndarray,
+        sub: np.ndarray,
+        out: dict[str, np.ndarray] | None = None,
+    ) -> dict[str, np.ndarray]:
+        """Frame-start fields ``[X, nbody, ...]`` -> body and node kinematics ``[X, ...]``.
+
+        Velocities come from ``cvel`` at the tree's reference point ``sub`` (subtree_com).
+        Arrays in ``out`` (``[X, ...]``, e.g. views of the outputs) are filled in place.
+        """
+        out = {} if out is None else out
+        w0 = cvel[..., 0:3]
+        v0 = cvel[..., 3:6] + np.cross(w0, xipos - sub[:, self.root])
+        nbd = self.node_body
+
+        def nodes(a, i):  # component i of a body field at each node: [X, N]
+            return np.take(np.ascontiguousarray(a[..., i]), nbd, axis=1)
+
+        node_pos = _add(
+            tuple(nodes(xpos, i) for i in range(3)),
+            _qrot(tuple(nodes(xquat, i) for i in range(4)), self.node_c),
+        )
+        arm = tuple(node_pos[i] - nodes(xipos, i) for i in range(3))
+        node_vel = _add(
+            tuple(nodes(v0, i) for i in range(3)),
+            _cross(tuple(nodes(w0, i) for i in range(3)), arm),
+        )
+        res = {
+            "body_pos": xpos[:, 1:],
+            "body_quat": xquat[:, 1:],
+            "body_com": xipos[:, 1:],
             "body_linvel": v0[:, 1:],
             "body_angvel": w0[:, 1:],
-            "body_acc": acc,
-            "body_contact_force": contact_f[:, 1:],
-            "body_contact_torque": contact_t[:, 1:],
+        }
+        for key, v in res.items():
+            if key in out:
+                out[key][...] = v
+            else:
+                out[key] = v
+        for key, v in (("node_pos", node_pos), ("node_vel", node_vel)):
+            out[key] = np.stack(v, -1, out=out.get(key))
+        return out
+
+    # -- loads of whole frames ---------------------------------------------------------
+    def finish(
+        self, lo: dict[str, np.ndarray], out: dict[str, np.ndarray] | None = None
+    ) -> dict[str, np.ndarray]:
+        """:meth:`loads` of ``X`` frames -> the recorded load arrays ``[X, ...]`` (into ``out``)."""
+        out = {} if out is None else out
+        X, B = lo["joint"].shape[:2]
+        Fa = np.zeros((X, B + 1, 3))  # row 0: the world
+        Ta = np.zeros((X, B + 1, 3))
+        for j in range(len(self.act_joint)):
+            b, pb = self.act_body[j], self.act_parent[j]
+            gm = lo["gen"][:, j]
+            if self.act_slide[j]:
+                Fa[:, b] += gm
+                Ta[:, b] += lo["arm_b"][:, j]
+                Fa[:, pb] -= gm
+                Ta[:, pb] -= lo["arm_p"][:, j]
+            else:
+                Ta[:, b] += gm
+                Ta[:, pb] -= gm
+        node_jf = out["node_joint_force"] if "node_joint_force" in out else np.empty((X, self.N, 3))
+        node_jf[...] = 0
+        fint = lo["fint"]
+        np.add.at(node_jf, (slice(None), self.jf_dst), fint[:, self.jf_src - 1])
+        np.add.at(node_jf, (slice(None), self.jr_dst), -fint[:, self.jr_src - 1])
+        joint = lo["joint"]
+        res = {
+            "body_acc": lo["acc"],
+            "body_contact_force": lo["contact"][..., 3:],
+            "body_contact_torque": lo["contact"][..., :3],
             "body_actuator_force": Fa[:, 1:],
             "body_actuator_torque": Ta[:, 1:],
-            "body_joint_force": (joint_f - Fa)[:, 1:],
-            "body_joint_torque": (joint_t - Ta)[:, 1:],
-            "node_pos": node_pos,
-            "node_vel": node_vel,
-            "node_contact_force": node_cf,
+            "body_joint_force": joint[..., 3:] - Fa[:, 1:],
+            "body_joint_torque": joint[..., :3] - Ta[:, 1:],
             "node_joint_force": node_jf,
-            "contact_count": ncontact,
-            "contact_overflow": overflow,
+            "contact_count": lo["contact_count"],
+            "contact_overflow": lo["contact_overflow"],
         }
+        for key, v in res.items():
+            if key in out:
+                if out[key] is not v:
+                    out[key][...] = v
+            else:
+                out[key] = v
+        return out
+
+    def frames(self, rec: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Records ``[X, k, ...]`` (X frames of k steps each, full sensordata) -> frames ``[X, ...]``."""
+        kin = self.kinematics(*(rec[f][:, 0] for f in KINEMATICS))
+        lo = self.loads(rec)
+        X = len(lo["joint"])
+        cf = lo.pop("node_cf")
+        out = {**kin, **self.finish(lo)}
+        out["node_contact_force"] = np.zeros((X, self.N, 3)) if cf is None else cf
         return {key: np.ascontiguousarray(v) for key, v in out.items()}
