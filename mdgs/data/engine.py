@@ -99,7 +99,7 @@ def simulate(
     seed: int,
     n_frames: int,
     *,
-    block_bytes: int = 24 << 20,
+    block_bytes: int = 8 << 20,
 ) -> dict[str, np.ndarray]:
     """Per-frame arrays ``[len(ids), n_frames, ...]`` (see :mod:`mdgs.data.schema`).
 
@@ -142,10 +142,10 @@ def simulate(
 
     # a block: [frames, R, k, ...] per field, each frame's rows contiguous (rollout's out)
     lean_d = mujoco.MjData(lean_m) if lean_m is not None else None
-    step_bytes = sum(4 if f == "ncon" else getattr(data, f).nbytes for f in reduce.fields)
-    nfb = int(max(1, min(n_frames, block_bytes // max(1, R * k * step_bytes))))
 
     def buffers(d, fields):
+        step = sum(4 if f == "ncon" else getattr(d, f).nbytes for f in fields)
+        nfb = int(max(1, min(n_frames, block_bytes // max(1, R * k * step))))
         return {
             f: np.empty((nfb, R, k) + np.shape(getattr(d, f)), np.int32 if f == "ncon" else float)
             for f in fields
@@ -190,7 +190,7 @@ def simulate(
             # the cheaper model for the contacts of this frame, with hysteresis
             want = len(hit) <= R * (_LEAN_STAY if use_lean else _LEAN_ENTER)
         state = batch.state[:, :nphys].copy()
-        if j + 1 < nfb and f + 1 < n_frames and want == use_lean:
+        if j + 1 < len(buf["cfrc_int"]) and f + 1 < n_frames and want == use_lean:
             continue
         # reduce the block [b0, f]: per-frame loads, frame-start fields
         nf = j + 1
@@ -226,16 +226,16 @@ def simulate(
         r1 = min(R, r0 + per)
         X = (r1 - r0) * n_frames
 
-        def rows(v, r0=r0, r1=r1, X=X):
+        def chunk(v, r0=r0, r1=r1, X=X):  # trajectories r0:r1 as X frames
             return v[r0:r1].reshape((X,) + v.shape[2:])
 
-        views = {key: rows(v) for key, v in out.items()}
-        res = reduce.finish({key: rows(v) for key, v in loads.items()}, out=views)
-        res = reduce.kinematics(*(rows(kin[key]) for key in KINEMATICS), out=res)
+        views = {key: chunk(v) for key, v in out.items()}
+        res = reduce.finish({key: chunk(v) for key, v in loads.items()}, out=views)
+        res = reduce.kinematics(*(chunk(kin[key]) for key in KINEMATICS), out=res)
         for key, v in res.items():
             if key not in out:  # first chunk: allocate the output, then fill it
                 out[key] = np.empty((R, n_frames) + v.shape[1:], v.dtype)
-                rows(out[key])[...] = v
+                chunk(out[key])[...] = v
     out["time"] = frames[:, :, sl["time"]][..., 0]
     out["qpos"] = frames[:, :, sl["qpos"]]
     out["qvel"] = frames[:, :, sl["qvel"]]

@@ -500,7 +500,11 @@ def _ksum(a: np.ndarray, axis: int) -> np.ndarray:
 
 
 def _cross_sum(r: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """``r x f`` summed over the steps, for component-first arrays ``[3, X, k, B]``: ``[3, X, B]``."""
+    """``r x f`` summed over the steps, for component-first arrays ``[3, ..., k]``: ``[3, ...]``.
+
+    The steps are the last, contiguous axis, summed pairwise: the same bits for any
+    number of frames, since each sum runs over one frame's ``k`` contiguous values.
+    """
     out = np.empty_like(f)
     tmp = np.empty_like(f[0])
     for i in range(3):
@@ -508,7 +512,12 @@ def _cross_sum(r: np.ndarray, f: np.ndarray) -> np.ndarray:
         np.multiply(r[j], f[l], out=out[i])
         np.multiply(r[l], f[j], out=tmp)
         out[i] -= tmp
-    return _ksum(out, 2)
+    return out.sum(-1)
+
+
+def _steps_last(a: np.ndarray) -> np.ndarray:
+    """``[X, k, B, 3]`` records -> component-first ``[3, X, B, k]`` view (steps last)."""
+    return a.transpose(3, 0, 2, 1)
 
 
 RECORD_FIELDS = (
@@ -600,6 +609,14 @@ class FrameReducer:
                 for b in self.cb
             ]
         )
+        # bodies that may touch but have no contact sensor (welded to the world, or in
+        # explicit contact pairs only): always checked for a contact force
+        can = np.zeros(nb, bool)
+        can[m.geom_bodyid[(m.geom_contype != 0) | (m.geom_conaffinity != 0)]] = True
+        can[m.geom_bodyid[np.concatenate([m.pair_geom1, m.pair_geom2])]] = True
+        can &= not (m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_CONTACT))
+        can[0] = False
+        self.unsensed = np.flatnonzero(can & ~inst.has_contact_sensor)
         has_anchor = inst.anchor_node >= 0
         self.jf_src, self.jf_dst = np.flatnonzero(has_anchor), inst.anchor_node[has_anchor]
         has_child = inst.child_anchor_node >= 0
@@ -626,7 +643,7 @@ class FrameReducer:
         The contact fields (:attr:`contact_fields`, the model's full sensordata) come from
         ``rec``, or from ``contact`` (``[len(rows), k, ...]``) for frames ``rows`` only,
         the others having had no contact. Per-step products run on component-first
-        copies ``[3, X, k, B]``.
+        copies with the steps last, ``[3, X, B, k]``.
         """
         k, B = self.k, self.B
         cint = rec["cfrc_int"]
@@ -634,40 +651,46 @@ class FrameReducer:
         if rows is None:
             contact, rows = rec, np.arange(X)
         xipos, sub = rec["xipos"], rec["subtree_com"]
-        # r = c - com
-        r = np.empty((3, X, k, B))
+        # r = c - com: component first, steps last [3, X, B, k]
+        r = np.empty((3, X, B, k))
         for root, lo, hi in self.trees:
             np.subtract(
-                np.moveaxis(sub[:, :, root : root + 1], -1, 0),
-                np.moveaxis(xipos[:, :, lo:hi], -1, 0),
-                out=r[..., lo - 1 : hi - 1],
+                _steps_last(sub[:, :, root : root + 1]),
+                _steps_last(xipos[:, :, lo:hi]),
+                out=r[:, :, lo - 1 : hi - 1],
             )
         # joints: the parent's wrench on b minus what b passes to its children
         W = _ksum(cint[:, :, 1:], 1)  # [X, B, 6] sums over the steps (about c)
         fint = W[..., 3:] / k
         Jw = W.copy()
-        F0 = np.empty((3, X, k, B))
-        np.copyto(F0, np.moveaxis(cint[:, :, 1:, 3:], -1, 0))
+        F0 = np.empty((3, X, B, k))
+        np.copyto(F0, _steps_last(cint[:, :, 1:, 3:]))
         Jf = F0.copy() if self.child_groups else F0
         for tg, sg in self.child_groups:
             Jw[:, tg] -= W[:, sg]
-            Jf[..., tg] -= F0[..., sg]
+            Jf[:, :, tg] -= F0[:, :, sg]
         joint = np.empty((X, B, 6))
         np.divide(Jw[..., :3] + np.moveaxis(_cross_sum(r, Jf), 0, -1), k, out=joint[..., :3])
         np.divide(Jw[..., 3:], k, out=joint[..., 3:])
-        # contacts (the only external loads): per step only for bodies with a force
+        # contacts (the only external loads): per step only for bodies in contact
         wrench = np.zeros((X, B, 6))
+        found = None
+        if self.C and len(rows):  # contacts matched per body and step [len(rows) k, C]
+            sdc = np.ascontiguousarray(contact["sensordata"])
+            found = sdc.reshape(-1, sdc.shape[-1])[
+                :, self.slot0 : self.slot0 + 13 * self.nslot * self.C : 13 * self.nslot
+            ]
         cext = contact["cfrc_ext"] if len(rows) else None
         if cext is not None and cext.any():
             E = _ksum(cext[:, :, 1:], 1)
             cw = np.divide(E, k)
-            nz = np.abs(cext[:, :, 1:, 3:].reshape(-1, 3 * B)).max(0).reshape(B, 3)
-            touched = np.flatnonzero(nz.max(1) > 0)
+            sensed = self.cb[(found > 0).any(0)] if found is not None else self.cb[:0]
+            touched = np.union1d(sensed, self.unsensed) - 1
             if len(touched):
                 tb = _index(touched)
-                fe = np.empty((3, len(rows), k, len(touched)))
-                np.copyto(fe, np.moveaxis(cext[:, :, 1:][:, :, tb, 3:], -1, 0))
-                rc = r[..., tb] if len(rows) == X else r[:, rows][..., tb]
+                fe = np.empty((3, len(rows), len(touched), k))
+                np.copyto(fe, _steps_last(cext[:, :, 1:][:, :, tb, 3:]))
+                rc = r[:, :, tb] if len(rows) == X else r[:, rows][:, :, tb]
                 cr = np.moveaxis(_cross_sum(rc, fe), 0, -1)
                 cw[:, tb, :3] = (E[:, tb, :3] + cr) / k
             wrench[rows] = cw
@@ -681,11 +704,11 @@ class FrameReducer:
         }
         # actuators on scalar joints: generalized force along the joint axis
         if len(self.act_joint):
-            tau = rec["qfrc_actuator"][:, :, self.act_dof]  # [X, k, J]
-            gen = np.empty((3, X, k, len(self.act_joint)))
-            np.copyto(gen, np.moveaxis(rec["xaxis"][:, :, self.act_jnt], -1, 0))  # world axes
+            tau = rec["qfrc_actuator"][:, :, self.act_dof].transpose(0, 2, 1)  # [X, J, k]
+            gen = np.empty((3, X, len(self.act_joint), k))
+            np.copyto(gen, _steps_last(rec["xaxis"][:, :, self.act_jnt]))  # world axes
             gen *= tau
-            out["gen"] = np.moveaxis(_ksum(gen, 2), 0, -1) / k
+            out["gen"] = np.moveaxis(gen.sum(-1), 0, -1) / k
             if self.act_slide.any():
                 anchor = rec["xanchor"][:, :, self.act_jnt]
                 for key, bodies in (("arm_b", self.act_body), ("arm_p", self.act_parent)):
@@ -693,7 +716,7 @@ class FrameReducer:
                         _mean(
                             _cross(
                                 tuple(anchor[..., i] - xipos[:, :, bodies, i] for i in range(3)),
-                                tuple(gen),
+                                tuple(np.swapaxes(g, 1, 2) for g in gen),
                             )
                         )
                     )
