@@ -349,12 +349,6 @@ def _aos(v) -> np.ndarray:
     return np.stack(v, -1)
 
 
-def _soa(a: np.ndarray) -> tuple:
-    """Array [..., d] -> tuple of d contiguous component arrays."""
-    t = np.ascontiguousarray(np.moveaxis(a, -1, 0))
-    return tuple(t)
-
-
 class _NearestNode:
     """Nearest node centroid of points in a body frame, exact and fast.
 
@@ -600,7 +594,6 @@ class FrameReducer:
             inst.slots[self.cb, 0, 0], self.slot0 + 13 * self.nslot * np.arange(self.C)
         ):
             raise AssertionError("internal: contact sensors are not contiguous")
-        self.slot_cols = slice(self.slot0, self.slot0 + 13 * self.nslot * self.C)
         self.locate = _Locator(
             [
                 _NearestNode(
