@@ -29,12 +29,16 @@ def _random_rigid(seed: int, scale_w: float = 1.0):
 def test_twist_recovers_the_velocity_and_angular_velocity_of_a_rigid_field(seed, scale_w):
     x, v, mass, vc, w = _random_rigid(seed, scale_w)
     tw = twist(x, v, SEG, 3, mass)
-    # tolerance: relative 1e-9 of |omega| (float64 solve of a 3x3 system; Tikhonov term 1e-12)
-    assert torch.allclose(tw.vc, vc, rtol=0, atol=1e-9 * (1 + scale_w))
-    assert torch.allclose(tw.omega, w, rtol=0, atol=1e-9 * (1 + scale_w))
+    # tolerance: the Tikhonov term EPS tr(J)/3 biases omega by about EPS cond(J) |omega|; random
+    # 3-node objects can be nearly collinear (cond(J) ~ 1e4), so the bound scales with cond(J)
+    ev = torch.linalg.eigvalsh(tw.J[:, :2])
+    cond = float((ev[..., -1] / ev[..., 0]).max())
+    tol = 1e-11 * cond * (1 + scale_w)
+    assert torch.allclose(tw.vc, vc, rtol=0, atol=1e-12 * (1 + scale_w))
+    assert torch.allclose(tw.omega, w, rtol=0, atol=tol)
     # and projecting the rigid field itself gives the same twist
     a, alpha = project(v, x, tw, SEG, 3, mass)
-    assert torch.allclose(a, vc, atol=1e-9 * (1 + scale_w)) and torch.allclose(alpha, w, atol=1e-9 * (1 + scale_w))
+    assert torch.allclose(a, vc, atol=1e-12 * (1 + scale_w)) and torch.allclose(alpha, w, atol=tol)
 
 
 @settings(max_examples=30, deadline=None)
@@ -49,7 +53,9 @@ def test_projection_drops_exactly_the_non_rigid_part(seed):
     r = x - tw.c[:, SEG]
     deform = e - ea[:, SEG] - torch.linalg.cross(ealpha[:, SEG], r, dim=-1)
     a, alpha = project(v + deform, x, tw, SEG, 3, mass)
-    assert torch.allclose(a[:, :2], vc[:, :2], atol=1e-9) and torch.allclose(alpha[:, :2], w[:, :2], atol=1e-8)
+    ev = torch.linalg.eigvalsh(tw.J[:, :2])
+    tol = 1e-11 * float((ev[..., -1] / ev[..., 0]).max()) + 1e-9  # as above, plus the deformation's rounding
+    assert torch.allclose(a[:, :2], vc[:, :2], atol=1e-9) and torch.allclose(alpha[:, :2], w[:, :2], atol=tol)
 
 
 def test_advance_keeps_shapes_and_turns_a_flywheel_round_its_circle():
