@@ -128,6 +128,25 @@ def _mean_valid(a: np.ndarray) -> float | None:
     return float(a[ok].mean()) if ok.any() else None
 
 
+def _metrics(r: Rollout) -> dict:
+    """MSE at the report times (mean over trajectories not diverged) and the per-step curves."""
+    F = r.pos_mse.shape[1]
+    rep = {}
+    for t in REPORT_TIMES:
+        f = _frame_of(t, F)
+        rep[f"mse_t{t}"] = _mean_valid(r.pos_mse[:, f])
+        rep[f"mse_t{t}_velocity"] = _mean_valid(r.vel_mse[:, f])
+        rep[f"mse_t{t}_frame"] = f
+        rep[f"mse_t{t}_trajectories"] = int(np.isfinite(r.pos_mse[:, f]).sum())
+    with np.errstate(invalid="ignore"):
+        n_ok = np.isfinite(r.pos_mse).sum(0)
+        rep["rollout_mse_curve"] = [None if n == 0 else float(np.nanmean(c)) for n, c in zip(n_ok, r.pos_mse.T, strict=True)]
+        rep["rollout_mse_curve_velocity"] = [None if n == 0 else float(np.nanmean(c))
+                                             for n, c in zip(n_ok, r.vel_mse.T, strict=True)]
+    rep["rollout_mse_curve_trajectories"] = n_ok.astype(int).tolist()
+    return rep
+
+
 def evaluate_run(run: str | os.PathLike, d: SplitData, dev, batch_size: int = 64) -> tuple[dict, Rollout]:
     """Evaluate one run on a loaded split -> (report dict, rollout). Raises RunError on a mismatch."""
     model, state = load_run(run, dev)
@@ -162,18 +181,7 @@ def evaluate_run(run: str | os.PathLike, d: SplitData, dev, batch_size: int = 64
         "diverged": [{"trajectory": int(i), "step": int(s), "time_s": float(s * d.frame_dt)}
                      for i, s in enumerate(r.diverged_at) if s >= 0],
     }
-    for t in REPORT_TIMES:
-        f = _frame_of(t, F)
-        rep[f"mse_t{t}"] = _mean_valid(r.pos_mse[:, f])
-        rep[f"mse_t{t}_velocity"] = _mean_valid(r.vel_mse[:, f])
-        rep[f"mse_t{t}_frame"] = f
-        rep[f"mse_t{t}_trajectories"] = int(np.isfinite(r.pos_mse[:, f]).sum())
-    with np.errstate(invalid="ignore"):
-        n_ok = np.isfinite(r.pos_mse).sum(0)
-        rep["rollout_mse_curve"] = [None if n == 0 else float(np.nanmean(c)) for n, c in zip(n_ok, r.pos_mse.T, strict=True)]
-        rep["rollout_mse_curve_velocity"] = [None if n == 0 else float(np.nanmean(c))
-                                             for n, c in zip(n_ok, r.vel_mse.T, strict=True)]
-    rep["rollout_mse_curve_trajectories"] = n_ok.astype(int).tolist()
+    rep.update(_metrics(r))
     rep["status"] = "diverged" if rep["diverged"] else "ok"
     return rep, r
 
@@ -187,15 +195,7 @@ def reference(d: SplitData, dev) -> tuple[dict, Rollout]:
     simulator must beat to have learned any dynamics (gravity, contact, actuation)."""
     scene = SceneGraph.from_static(d.static, has_contact=d.has_contact).to(dev)
     r = rollout(None, scene, d, dev, step=constant_twist_step(scene, d.frame_dt))
-    rep = {"name": REFERENCE}
-    for t in REPORT_TIMES:
-        f = _frame_of(t, r.pos_mse.shape[1])
-        rep[f"mse_t{t}"] = _mean_valid(r.pos_mse[:, f])
-        rep[f"mse_t{t}_velocity"] = _mean_valid(r.vel_mse[:, f])
-        rep[f"mse_t{t}_trajectories"] = int(np.isfinite(r.pos_mse[:, f]).sum())
-    with np.errstate(invalid="ignore"):
-        rep["rollout_mse_curve"] = [None if not np.isfinite(c).any() else float(np.nanmean(c)) for c in r.pos_mse.T]
-    rep["diverged"] = int((r.diverged_at >= 0).sum())
+    rep = {"name": REFERENCE, **_metrics(r), "diverged": int((r.diverged_at >= 0).sum())}
     return rep, r
 
 

@@ -38,7 +38,7 @@ from mdgs.data.schema import DatasetError
 from mdgs.graphs import SceneGraph
 from mdgs.losses import constraint_loss, mse_loss, speeds_of
 from mdgs.model import MDGS, ModelConfig
-from mdgs.rigid import perturb
+from mdgs.rigid import advance, perturb, twist
 
 __all__ = [
     "TrainConfig",
@@ -242,8 +242,6 @@ def _rigid_increments(d: SplitData, scene: SceneGraph, dt: float, trapezoidal: b
     and the position residual ``x' - advance(x, twist', dt)``, both [P, N_moving, 3], and the
     moving objects' increments ``v_c' - v_c`` and ``w' - w`` [P, S_moving, 3].
     """
-    from mdgs.rigid import advance, twist
-
     pairs = d.pairs()
     if len(pairs) > max_pairs:
         pairs = pairs[np.linspace(0, len(pairs) - 1, max_pairs).astype(int)]
@@ -286,10 +284,11 @@ def _resolve_model(cfg: ModelConfig, d: SplitData, scene: SceneGraph | None = No
                 kw["dvc_scale"] = float(max(dvc.std(), 1e-12))
             if cfg.dw_scale == 1.0:
                 kw["dw_scale"] = float(max(dw.std(), 1e-12))
-    if cfg.integrator == "twist":  # g has no position output: weigh a velocity error like the
-        dx = np.array([dt / 2 * dv.std()])  # position error it makes over half a frame
+    # twist: g has no position output; a velocity error weighs like the position error it makes
+    # over half a frame. Otherwise: the spread of g's position target.
+    dx_auto = dt / 2 * float(dv.std()) if cfg.integrator == "twist" else float(dx.std())
     if cfg.dx_scale == 1.0:
-        kw["dx_scale"] = float(max(dx.std() if dx.size > 1 else abs(dx[0]), 1e-12))
+        kw["dx_scale"] = max(dx_auto, 1e-12)
     if cfg.dv_scale == 1.0:
         kw["dv_scale"] = float(max(dv.std(), 1e-12))
     if cfg.force_scale == 1.0:  # typical |M dv / dt| of an element, N
