@@ -39,7 +39,6 @@ _INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION
 # share of trajectories in contact under which the lean model (no contact sensors) steps a
 # block: re-running the few in contact costs less than the sensors for all (hysteresis)
 _LEAN_ENTER, _LEAN_STAY = 0.05, 0.15
-_CHUNK_ROWS = 512  # frames per call of the per-frame (not per-step) reductions
 
 
 def rng_for(seed: int, split: str, index: int) -> np.random.Generator:
@@ -218,24 +217,18 @@ def simulate(
             (lean if want else full).state[:] = batch.state
             use_lean, batch = want, (lean if want else full)
 
-    # whole frames, a few trajectories at a time: actuator and joint loads, kinematics
+    # whole frames: actuator and joint loads, kinematics
     node_cf = loads.pop("node_cf", None)
     out["node_contact_force"] = np.zeros((R, n_frames, N, 3)) if node_cf is None else node_cf
-    per = max(1, _CHUNK_ROWS // n_frames)
-    for r0 in range(0, R, per):
-        r1 = min(R, r0 + per)
-        X = (r1 - r0) * n_frames
+    X = R * n_frames
 
-        def chunk(v, r0=r0, r1=r1, X=X):  # trajectories r0:r1 as X frames
-            return v[r0:r1].reshape((X,) + v.shape[2:])
+    def flat(v):  # [R, F, ...] -> [X, ...] (a view)
+        return v.reshape((X,) + v.shape[2:])
 
-        views = {key: chunk(v) for key, v in out.items()}
-        res = reduce.finish({key: chunk(v) for key, v in loads.items()}, out=views)
-        res = reduce.kinematics(*(chunk(kin[key]) for key in KINEMATICS), out=res)
-        for key, v in res.items():
-            if key not in out:  # first chunk: allocate the output, then fill it
-                out[key] = np.empty((R, n_frames) + v.shape[1:], v.dtype)
-                chunk(out[key])[...] = v
+    res = reduce.finish({key: flat(v) for key, v in loads.items()})
+    res = reduce.kinematics(*(flat(kin[key]) for key in KINEMATICS), out=res)
+    for key, v in res.items():
+        out[key] = v.reshape((R, n_frames) + v.shape[1:])
     out["time"] = frames[:, :, sl["time"]][..., 0]
     out["qpos"] = frames[:, :, sl["qpos"]]
     out["qvel"] = frames[:, :, sl["qvel"]]

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from mdgs.data import _kernels
 from mdgs.partition import Partition, PartitionParams, partition_model
 
 __all__ = [
@@ -294,61 +295,6 @@ def _anchor_nodes(model: mujoco.MjModel, part: Partition) -> tuple[np.ndarray, n
     return anchor, child_anchor
 
 
-# Vector algebra on "structure of arrays": a vector is a tuple of 3 arrays (x, y, z) and a
-# quaternion a tuple of 4 (w, x, y, z). Elementwise formulas on contiguous component
-# arrays are an order of magnitude faster in numpy than np.cross on strided [..., 3] views.
-
-
-def _cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def _add(a, b):
-    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
-
-
-def _sub(a, b):
-    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
-
-
-def _qrot(q, v, inverse: bool = False):
-    """Rotate v by unit quaternion q: v + 2w (u x v) + 2 u x (u x v) (conjugate if ``inverse``)."""
-    w = q[0]
-    u = (-q[1], -q[2], -q[3]) if inverse else (q[1], q[2], q[3])
-    t = _cross(u, v)
-    t = (2 * t[0], 2 * t[1], 2 * t[2])
-    c = _cross(u, t)
-    return (v[0] + w * t[0] + c[0], v[1] + w * t[1] + c[1], v[2] + w * t[2] + c[2])
-
-
-def _qmat(q):
-    """Rotation matrix (9 components, row major) of unit quaternions (w, x, y, z)."""
-    w, x, y, z = q
-    xx, yy, zz = x * x, y * y, z * z
-    xy, xz, yz, wx, wy, wz = x * y, x * z, y * z, w * x, w * y, w * z
-    return (
-        1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy),
-        2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx),
-        2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy),
-    )  # fmt: skip
-
-
-def _mrot(Rm, v, transpose: bool = False):
-    """R v (or R^T v) for R given as 9 components."""
-    if transpose:
-        return tuple(Rm[i] * v[0] + Rm[3 + i] * v[1] + Rm[6 + i] * v[2] for i in range(3))
-    return tuple(Rm[3 * i] * v[0] + Rm[3 * i + 1] * v[1] + Rm[3 * i + 2] * v[2] for i in range(3))
-
-
-def _mean(v, axis: int = 1):
-    return tuple(c.mean(axis) for c in v)
-
-
-def _aos(v) -> np.ndarray:
-    """Tuple of component arrays -> array [..., 3]."""
-    return np.stack(v, -1)
-
-
 class _NearestNode:
     """Nearest node centroid of points in a body frame, exact and fast.
 
@@ -380,139 +326,6 @@ class _NearestNode:
         d = sum((p[i][:, None] - self.c[None, :, i]) ** 2 for i in range(3))
         return np.argmin(d, 1)
 
-    def __call__(self, p) -> np.ndarray:
-        """Global node ids of the points ``p`` (3 arrays, body frame)."""
-        ijk = [np.floor((p[i] - self.lo[i]) / self.h[i]).astype(np.int64) for i in range(3)]
-        inside = (
-            (ijk[0] >= 0)
-            & (ijk[0] < self.res)
-            & (ijk[1] >= 0)
-            & (ijk[1] < self.res)
-            & (ijk[2] >= 0)
-            & (ijk[2] < self.res)
-        )
-        out = np.full(p[0].shape[0], -1, np.int64)
-        flat = (ijk[0] * self.res + ijk[1]) * self.res + ijk[2]
-        out[inside] = self.table[flat[inside]]
-        miss = out < 0
-        if miss.any():
-            out[miss] = self._exact(tuple(c[miss] for c in p))
-        return self.nodes[out]
-
-
-class _Locator:
-    """:class:`_NearestNode` of several bodies at once: points ``p`` of bodies ``which``."""
-
-    def __init__(self, finders: list[_NearestNode]):
-        self.finders = finders
-        self.lo = np.array([f.lo for f in finders]).T.copy()  # [3, C]
-        self.h = np.array([f.h for f in finders]).T.copy()
-        self.res = np.array([f.res for f in finders], np.int64)
-        sizes = np.array([len(f.table) for f in finders], np.int64)
-        self.table_off = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-        self.table = (
-            np.concatenate([f.table for f in finders]) if finders else np.zeros(0, np.int64)
-        )
-        counts = np.array([len(f.nodes) for f in finders], np.int64)
-        self.node_off = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
-        self.nodes = (
-            np.concatenate([f.nodes for f in finders]) if finders else np.zeros(0, np.int64)
-        )
-
-    def __call__(self, p, which: np.ndarray) -> np.ndarray:
-        """Global node ids of the points ``p`` (3 arrays, body frames) of bodies ``which``."""
-        res = self.res[which]
-        ijk = [
-            np.floor((p[i] - self.lo[i][which]) / self.h[i][which]).astype(np.int64)
-            for i in range(3)
-        ]
-        inside = (
-            (ijk[0] >= 0)
-            & (ijk[0] < res)
-            & (ijk[1] >= 0)
-            & (ijk[1] < res)
-            & (ijk[2] >= 0)
-            & (ijk[2] < res)
-        )
-        local = np.full(p[0].shape[0], -1, np.int64)
-        flat = (ijk[0] * res + ijk[1]) * res + ijk[2] + self.table_off[which]
-        local[inside] = self.table[flat[inside]]
-        miss = np.flatnonzero(local < 0)
-        if len(miss):
-            for j in np.unique(which[miss]):
-                sel = miss[which[miss] == j]
-                local[sel] = self.finders[j]._exact(tuple(c[sel] for c in p))
-        return self.nodes[local + self.node_off[which]]
-
-
-def _index(a: np.ndarray):
-    """``a`` as a slice when it is a run of consecutive integers (a view instead of a copy)."""
-    a = np.asarray(a, np.int64)
-    if len(a) and np.array_equal(a, np.arange(a[0], a[0] + len(a))):
-        return slice(int(a[0]), int(a[0]) + len(a))
-    return a
-
-
-def _rank_groups(targets: np.ndarray, sources: np.ndarray) -> list[tuple]:
-    """Split ``x[targets[i]] -= y[sources[i]]`` (in order) into steps with distinct targets.
-
-    Step ``r`` holds each target's ``r``-th operation, so every target sees its operations
-    in the original order; each step is cut into runs of consecutive targets and sources,
-    which index as slices (views) rather than gathers.
-    """
-    rank = np.zeros(len(targets), int)
-    seen: dict[int, int] = {}
-    for i, t in enumerate(targets):
-        rank[i] = seen.get(int(t), 0)
-        seen[int(t)] = rank[i] + 1
-    steps = []
-    for r in range(int(rank.max()) + 1 if len(rank) else 0):
-        tg, sg = targets[rank == r], sources[rank == r]
-        cut = np.flatnonzero((np.diff(tg) != 1) | (np.diff(sg) != 1)) + 1
-        steps += [
-            (slice(int(t[0]), int(t[-1]) + 1), slice(int(u[0]), int(u[-1]) + 1))
-            for t, u in zip(np.split(tg, cut), np.split(sg, cut), strict=True)
-        ]
-    return steps
-
-
-def _ksum(a: np.ndarray, axis: int) -> np.ndarray:
-    """Sum over the steps axis, adding step after step (the same bits for any batch).
-
-    ``einsum`` runs this reduction several times faster than ``sum`` when the axes after
-    ``axis`` are short; with nothing after ``axis`` (``sum`` would switch to pairwise
-    summation) the steps are added one by one.
-    """
-    if int(np.prod(a.shape[axis + 1 :])) <= 1:
-        pre = (slice(None),) * axis
-        acc = a[pre + (0,)].copy()
-        for i in range(1, a.shape[axis]):
-            acc += a[pre + (i,)]
-        return acc
-    sub = "abcdefgh"[: a.ndim]
-    return np.einsum(f"{sub}->{sub[:axis]}{sub[axis + 1 :]}", a)
-
-
-def _cross_sum(r: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """``r x f`` summed over the steps, for component-first arrays ``[3, ..., k]``: ``[3, ...]``.
-
-    The steps are the last, contiguous axis, summed pairwise: the same bits for any
-    number of frames, since each sum runs over one frame's ``k`` contiguous values.
-    """
-    out = np.empty_like(f)
-    tmp = np.empty_like(f[0])
-    for i in range(3):
-        j, l = (i + 1) % 3, (i + 2) % 3
-        np.multiply(r[j], f[l], out=out[i])
-        np.multiply(r[l], f[j], out=tmp)
-        out[i] -= tmp
-    return out.sum(-1)
-
-
-def _steps_last(a: np.ndarray) -> np.ndarray:
-    """``[X, k, B, 3]`` records -> component-first ``[3, X, B, k]`` view (steps last)."""
-    return a.transpose(3, 0, 2, 1)
-
 
 RECORD_FIELDS = (
     "xpos",
@@ -541,10 +354,10 @@ class FrameReducer:
 
     Loads are means over each frame's ``k`` steps; kinematics are read at the frame's
     first step. MuJoCo's wrenches share one reference point per tree (the root's
-    subtree centre of mass ``c``); the move of a wrench to the body's centre of mass,
-    ``tau + (c - com) x f``, is the only per-step product, everything linear is summed
-    over the steps first (joint loads: the parent's wrench minus what the body passes
-    to its children). Every reduction is per frame, so frames never mix.
+    subtree centre of mass ``c``); a wrench moves to the body's centre of mass as
+    ``tau + (c - com) x f`` at every step (joint loads: the parent's wrench minus what the
+    body passes to its children). The loops are compiled (:mod:`mdgs.data._kernels`) and
+    every reduction is per frame, so frames never mix.
 
     :meth:`loads` reduces the per-step fields, :meth:`kinematics` the first-step ones and
     :meth:`finish` splits actuator loads from joint loads and puts joint forces on nodes;
@@ -558,35 +371,29 @@ class FrameReducer:
         self.nb = nb = m.nbody
         self.B = nb - 1
         self.g = np.array(m.opt.gravity, float)
-        self.root = m.body_rootid.copy()
+        self.root = m.body_rootid.astype(np.int64)
         part = inst.partition
-        self.node_body = part.body
-        self.node_c = tuple(np.ascontiguousarray(part.centroid.T))
+        self.node_body = part.body.astype(np.int64)
+        self.node_c = np.ascontiguousarray(part.centroid, dtype=float)
         self.N = part.body.shape[0]
-        par = m.body_parentid.copy()
+        par = m.body_parentid.astype(np.int64)
         self.parent = par
-        # runs of consecutive bodies of one tree: c - com without gathering c per body
-        self.trees = []
-        b = 1
-        while b < nb:
-            e = b + 1
-            while e < nb and self.root[e] == self.root[b]:
-                e += 1
-            self.trees.append((int(self.root[b]), b, e))
-            b = e
-        children = np.array([b for b in range(1, nb) if par[b] != 0], int)
-        self.child_groups = _rank_groups(par[children] - 1, children - 1)  # 0-based bodies 1..
+        children = [[c for c in range(1, nb) if par[c] == b] for b in range(nb)]
+        self.child_ptr = np.concatenate([[0], np.cumsum([len(c) for c in children])]).astype(
+            np.int64
+        )
+        self.child_idx = np.array([c for cs in children for c in cs], np.int64)
         j = inst.act_joints
         self.act_joint = j
-        self.act_dof = _index(m.jnt_dofadr[j])
-        self.act_jnt = _index(j)
-        self.act_body = m.jnt_bodyid[j].astype(int)
+        self.act_dof = m.jnt_dofadr[j].astype(np.int64)
+        self.act_jnt = np.asarray(j, np.int64)
+        self.act_body = m.jnt_bodyid[j].astype(np.int64)
         self.act_parent = par[self.act_body]
         self.act_slide = m.jnt_type[j] == int(_J.mjJNT_SLIDE)
         self.lin0 = int(inst.linacc[1, 0]) if nb > 1 else 0
         if not np.array_equal(inst.linacc[1:].ravel(), self.lin0 + np.arange(3 * (nb - 1))):
             raise AssertionError("internal: acceleration sensors are not contiguous")
-        self.cb = np.flatnonzero(inst.has_contact_sensor)  # bodies with contact sensors
+        self.cb = np.flatnonzero(inst.has_contact_sensor).astype(np.int64)  # sensed bodies
         self.C = len(self.cb)
         self.nslot = inst.slots.shape[1]
         self.slot0 = int(inst.slots[self.cb[0], 0, 0]) if self.C else 0
@@ -594,22 +401,29 @@ class FrameReducer:
             inst.slots[self.cb, 0, 0], self.slot0 + 13 * self.nslot * np.arange(self.C)
         ):
             raise AssertionError("internal: contact sensors are not contiguous")
-        self.locate = _Locator(
-            [
-                _NearestNode(
-                    part.centroid[part.nodes_of(b)], part.nodes_of(b), part.tau[part.nodes_of(b)]
-                )
-                for b in self.cb
-            ]
+        # nearest-node lookup of every sensed body, as flat arrays for the compiled loop
+        finders = [
+            _NearestNode(
+                part.centroid[part.nodes_of(b)], part.nodes_of(b), part.tau[part.nodes_of(b)]
+            )
+            for b in self.cb
+        ]
+        self.loc = (
+            np.concatenate([f.c for f in finders]) if finders else np.zeros((0, 3)),
+            np.concatenate([f.nodes for f in finders]).astype(np.int64)
+            if finders
+            else np.zeros(0, np.int64),
+            np.array([f.lo for f in finders]).reshape(-1, 3),
+            np.array([f.h for f in finders]).reshape(-1, 3),
+            np.array([f.res for f in finders], np.int64),
+            np.concatenate([f.table for f in finders]).astype(np.int64)
+            if finders
+            else np.zeros(0, np.int64),
+            np.concatenate([[0], np.cumsum([len(f.table) for f in finders])]).astype(np.int64),
+            np.concatenate([[0], np.cumsum([len(f.nodes) for f in finders])]).astype(np.int64),
         )
         # bodies that may touch but have no contact sensor (welded to the world, or in
-        # explicit contact pairs only): always checked for a contact force
-        can = np.zeros(nb, bool)
-        can[m.geom_bodyid[(m.geom_contype != 0) | (m.geom_conaffinity != 0)]] = True
-        can[m.geom_bodyid[np.concatenate([m.pair_geom1, m.pair_geom2])]] = True
-        can &= not (m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_CONTACT))
-        can[0] = False
-        self.unsensed = np.flatnonzero(can & ~inst.has_contact_sensor)
+        # explicit contact pairs only): their cfrc_ext is still read every step
         has_anchor = inst.anchor_node >= 0
         self.jf_src, self.jf_dst = np.flatnonzero(has_anchor), inst.anchor_node[has_anchor]
         has_child = inst.child_anchor_node >= 0
@@ -635,144 +449,43 @@ class FrameReducer:
 
         The contact fields (:attr:`contact_fields`, the model's full sensordata) come from
         ``rec``, or from ``contact`` (``[len(rows), k, ...]``) for frames ``rows`` only,
-        the others having had no contact. Per-step products run on component-first
-        copies with the steps last, ``[3, X, B, k]``.
+        the others having had no contact.
         """
         k, B = self.k, self.B
         cint = rec["cfrc_int"]
         X = cint.shape[0]
         if rows is None:
             contact, rows = rec, np.arange(X)
+        rows = np.asarray(rows, np.int64)
         xipos, sub = rec["xipos"], rec["subtree_com"]
-        # r = c - com: component first, steps last [3, X, B, k]
-        r = np.empty((3, X, B, k))
-        for root, lo, hi in self.trees:
-            np.subtract(
-                _steps_last(sub[:, :, root : root + 1]),
-                _steps_last(xipos[:, :, lo:hi]),
-                out=r[:, :, lo - 1 : hi - 1],
-            )
-        # joints: the parent's wrench on b minus what b passes to its children
-        W = _ksum(cint[:, :, 1:], 1)  # [X, B, 6] sums over the steps (about c)
-        fint = W[..., 3:] / k
-        Jw = W.copy()
-        F0 = np.empty((3, X, B, k))
-        np.copyto(F0, _steps_last(cint[:, :, 1:, 3:]))
-        Jf = F0.copy() if self.child_groups else F0
-        for tg, sg in self.child_groups:
-            Jw[:, tg] -= W[:, sg]
-            Jf[:, :, tg] -= F0[:, :, sg]
-        joint = np.empty((X, B, 6))
-        np.divide(Jw[..., :3] + np.moveaxis(_cross_sum(r, Jf), 0, -1), k, out=joint[..., :3])
-        np.divide(Jw[..., 3:], k, out=joint[..., 3:])
-        # contacts (the only external loads): per step only for bodies in contact
+        joint, fint = np.empty((X, B, 6)), np.empty((X, B, 3))
+        _kernels.joint_loads(cint, xipos, sub, self.root, self.child_ptr, self.child_idx, k, joint, fint)  # fmt: skip
+        acc = np.empty((X, B, 3))
+        _kernels.step_means(rec["sensordata"], self.lin0, B, self.g, k, acc)
+        out = {"joint": joint, "fint": fint, "acc": acc}
+        J = len(self.act_joint)
+        if J:
+            gen, arm_b, arm_p = np.empty((X, J, 3)), np.empty((X, J, 3)), np.empty((X, J, 3))
+            anchor = rec["xanchor"] if self.act_slide.any() else np.zeros((X, k, 0, 3))
+            _kernels.actuator_loads(
+                rec["qfrc_actuator"], rec["xaxis"], anchor, xipos, self.act_dof, self.act_jnt,
+                self.act_body, self.act_parent, self.act_slide, k, gen, arm_b, arm_p,
+            )  # fmt: skip
+            out.update(gen=gen, arm_b=arm_b, arm_p=arm_p)
         wrench = np.zeros((X, B, 6))
-        found = None
-        if self.C and len(rows):  # contacts matched per body and step [len(rows) k, C]
-            sdc = np.ascontiguousarray(contact["sensordata"])
-            found = sdc.reshape(-1, sdc.shape[-1])[
-                :, self.slot0 : self.slot0 + 13 * self.nslot * self.C : 13 * self.nslot
-            ]
-        cext = contact["cfrc_ext"] if len(rows) else None
-        if cext is not None and cext.any():
-            E = _ksum(cext[:, :, 1:], 1)
-            cw = np.divide(E, k)
-            sensed = self.cb[(found > 0).any(0)] if found is not None else self.cb[:0]
-            touched = np.union1d(sensed, self.unsensed) - 1
-            if len(touched):
-                tb = _index(touched)
-                fe = np.empty((3, len(rows), len(touched), k))
-                np.copyto(fe, _steps_last(cext[:, :, 1:][:, :, tb, 3:]))
-                rc = r[:, :, tb] if len(rows) == X else r[:, rows][:, :, tb]
-                cr = np.moveaxis(_cross_sum(rc, fe), 0, -1)
-                cw[:, tb, :3] = (E[:, tb, :3] + cr) / k
-            wrench[rows] = cw
-        sd = rec["sensordata"]
-        acc = _ksum(sd[:, :, self.lin0 : self.lin0 + 3 * B], 1) / k
-        out = {
-            "joint": joint,
-            "fint": fint,
-            "contact": wrench,
-            "acc": acc.reshape(X, B, 3) + self.g,
-        }
-        # actuators on scalar joints: generalized force along the joint axis
-        if len(self.act_joint):
-            tau = rec["qfrc_actuator"][:, :, self.act_dof].transpose(0, 2, 1)  # [X, J, k]
-            gen = np.empty((3, X, len(self.act_joint), k))
-            np.copyto(gen, _steps_last(rec["xaxis"][:, :, self.act_jnt]))  # world axes
-            gen *= tau
-            out["gen"] = np.moveaxis(gen.sum(-1), 0, -1) / k
-            if self.act_slide.any():
-                anchor = rec["xanchor"][:, :, self.act_jnt]
-                for key, bodies in (("arm_b", self.act_body), ("arm_p", self.act_parent)):
-                    out[key] = _aos(
-                        _mean(
-                            _cross(
-                                tuple(anchor[..., i] - xipos[:, :, bodies, i] for i in range(3)),
-                                tuple(np.swapaxes(g, 1, 2) for g in gen),
-                            )
-                        )
-                    )
-        out.update(self._contacts(rec, contact, rows, X))
-        return out
-
-    def _contacts(self, rec, contact, rows, X) -> dict[str, np.ndarray]:
-        """Contact forces per node from the individual contacts, contact counts."""
-        k, N, C, ns = self.k, self.N, self.C, self.nslot
-        count = np.zeros(X)
-        overflow = np.zeros(X, np.int64)
-        out = {"contact_count": count, "contact_overflow": overflow, "node_cf": None}
-        if not C or not len(rows):
-            return out
-        sd = np.ascontiguousarray(contact["sensordata"])
-        flat, stride, base = sd.reshape(-1), sd.shape[-1], self.slot0
-        Xs = len(rows)
-        found = flat.reshape(Xs * k, stride)[:, base : base + 13 * ns * C : 13 * ns]  # [Xs k, C]
-        nuse = np.minimum(found, ns)
-        count[rows] = nuse.reshape(Xs, k * C).sum(1) / k
-        overflow[rows] = (found > ns).reshape(Xs, k * C).sum(1)
-        # slots s < min(found, ns) hold a contact (MuJoCo fills them in order)
-        xk, ci = np.nonzero(found > 0)
-        if not len(xk):
-            return out
-        m = nuse[xk, ci].astype(np.int64)
-        first = np.cumsum(m) - m
-        xk, ci = np.repeat(xk, m), np.repeat(ci, m)
-        si = np.arange(len(xk)) - np.repeat(first, m)
-        # found, force (contact frame), pos, normal, tangent: 13 contiguous [n] columns,
-        # gathered by flat index (much faster than fancy indexing of the strided view)
-        at0 = xk * stride + base + (ci * ns + si) * 13
-        col = list(np.take(flat, at0 + np.arange(13)[:, None]))
-        nrm, t1 = col[7:10], col[10:13]
-        t2 = _cross(nrm, t1)
-        fb = [-(col[1] * nrm[i] + col[2] * t1[i] + col[3] * t2[i]) for i in range(3)]  # on the body
-        pw = col[4:7]
-        xi, ki = np.divmod(xk, k)
-        xs = rows[xi]
-        over = np.nonzero((found > ns).reshape(Xs, k, C))
-        if len(over[0]):
-            # more contacts than slots: the rest of the body's contact force acts at the
-            # mean of its reported contact points (node forces still sum to the body's)
-            fl = xk * C + ci
-            size = Xs * k * C
-            cnt = np.bincount(fl, minlength=size).reshape(-1, k, C)[over]
-            fo = contact["cfrc_ext"][over[0], over[1], self.cb[over[2]], 3:]
-            rest = [
-                fo[:, i] - np.bincount(fl, fb[i], size).reshape(-1, k, C)[over] for i in range(3)
-            ]
-            mean_at = [np.bincount(fl, pw[i], size).reshape(-1, k, C)[over] / cnt for i in range(3)]
-            xs = np.concatenate([xs, rows[over[0]]])
-            ki = np.concatenate([ki, over[1]])
-            ci = np.concatenate([ci, over[2]])
-            fb = [np.concatenate([fb[i], rest[i]]) for i in range(3)]
-            pw = [np.concatenate([pw[i], mean_at[i]]) for i in range(3)]
-        at = (xs * k + ki) * self.nb + self.cb[ci]  # (frame, step, body) rows of xpos/xquat
-        p = np.take(rec["xpos"].reshape(-1, 3), at, axis=0).T
-        q = np.take(rec["xquat"].reshape(-1, 4), at, axis=0).T
-        local = _qrot(tuple(q), tuple(pw[i] - p[i] for i in range(3)), inverse=True)
-        idx = xs * N + self.locate(local, ci)
-        node_cf = np.stack([np.bincount(idx, fb[i], X * N) for i in range(3)], -1) / k
-        out["node_cf"] = node_cf.reshape(X, N, 3)
+        count, overflow = np.zeros(X), np.zeros(X, np.int64)
+        node_cf = None
+        if len(rows) and "cfrc_ext" in contact:
+            node_cf = np.zeros((X, self.N, 3)) if self.C else None
+            sdc = contact["sensordata"]
+            if not self.C:  # no contact sensor: nothing is read from sensordata
+                sdc = np.zeros((len(rows), k, 0))
+            _kernels.contact_loads(
+                rows, sdc, contact["cfrc_ext"], rec["xpos"], rec["xquat"], xipos, sub,
+                self.root, self.cb, self.slot0, self.nslot, k, *self.loc,
+                wrench, count, overflow, np.zeros((X, 0, 3)) if node_cf is None else node_cf,
+            )  # fmt: skip
+        out.update(contact=wrench, contact_count=count, contact_overflow=overflow, node_cf=node_cf)
         return out
 
     # -- first-step fields -----------------------------------------------------------
@@ -791,36 +504,33 @@ class FrameReducer:
         Arrays in ``out`` (``[X, ...]``, e.g. views of the outputs) are filled in place.
         """
         out = {} if out is None else out
-        w0 = cvel[..., 0:3]
-        v0 = cvel[..., 3:6] + np.cross(w0, xipos - sub[:, self.root])
-        nbd = self.node_body
+        X = xpos.shape[0]
+        v = np.empty((X, self.nb, 3))
 
-        def nodes(a, i):  # component i of a body field at each node: [X, N]
-            return np.take(np.ascontiguousarray(a[..., i]), nbd, axis=1)
+        def target(key):
+            a = out.get(key)
+            return a if a is not None and a.flags.c_contiguous else np.empty((X, self.N, 3))
 
-        node_pos = _add(
-            tuple(nodes(xpos, i) for i in range(3)),
-            _qrot(tuple(nodes(xquat, i) for i in range(4)), self.node_c),
-        )
-        arm = tuple(node_pos[i] - nodes(xipos, i) for i in range(3))
-        node_vel = _add(
-            tuple(nodes(v0, i) for i in range(3)),
-            _cross(tuple(nodes(w0, i) for i in range(3)), arm),
-        )
+        pos, vel = target("node_pos"), target("node_vel")
+        _kernels.node_kinematics(
+            *(np.ascontiguousarray(a) for a in (xpos, xquat, xipos, cvel, sub)),
+            self.root, self.node_body, self.node_c, v, pos, vel,
+        )  # fmt: skip
         res = {
             "body_pos": xpos[:, 1:],
             "body_quat": xquat[:, 1:],
             "body_com": xipos[:, 1:],
-            "body_linvel": v0[:, 1:],
-            "body_angvel": w0[:, 1:],
+            "body_linvel": v[:, 1:],
+            "body_angvel": cvel[:, 1:, 0:3],
+            "node_pos": pos,
+            "node_vel": vel,
         }
-        for key, v in res.items():
+        for key, a in res.items():
             if key in out:
-                out[key][...] = v
+                if out[key] is not a:
+                    out[key][...] = a
             else:
-                out[key] = v
-        for key, v in (("node_pos", node_pos), ("node_vel", node_vel)):
-            out[key] = np.stack(v, -1, out=out.get(key))
+                out[key] = a
         return out
 
     # -- loads of whole frames ---------------------------------------------------------
@@ -846,8 +556,10 @@ class FrameReducer:
         node_jf = out["node_joint_force"] if "node_joint_force" in out else np.empty((X, self.N, 3))
         node_jf[...] = 0
         fint = lo["fint"]
-        np.add.at(node_jf, (slice(None), self.jf_dst), fint[:, self.jf_src - 1])
-        np.add.at(node_jf, (slice(None), self.jr_dst), -fint[:, self.jr_src - 1])
+        for src, dst in zip(self.jf_src, self.jf_dst, strict=True):
+            node_jf[:, dst] += fint[:, src - 1]
+        for src, dst in zip(self.jr_src, self.jr_dst, strict=True):
+            node_jf[:, dst] -= fint[:, src - 1]
         joint = lo["joint"]
         res = {
             "body_acc": lo["acc"],
