@@ -19,7 +19,15 @@ Scene setup (MJCF compile, partition) is done once per dataset and not counted.
 Timings are noisy on a shared machine, so the two are measured side by side: each
 repeat runs the generation, the merge and then raw stepping of that repeat's
 trajectories, after one uncounted warm-up repeat; ratios are the medians of the
-repeats' paired ratios, rates the medians of the repeats' rates.
+repeats' paired ratios, rates the medians of the repeats' rates. ``write`` is the part
+file's share, in units of raw stepping time.
+
+Each repeat's files are deleted after it (``mdgs generate`` deletes its parts after the
+merge too), so the next repeat writes into page-cache memory the system has used
+before. ``--keep-files`` keeps them instead: every write then grows the page cache into
+memory never touched since boot, which on some virtual machines costs far more than
+the write itself (on the 2-core VM of docs/scenes.md, ~3 ms of kernel time per MB: a
+73 MB part takes 0.2-0.28 s instead of 0.02-0.05 s).
 """
 
 from __future__ import annotations
@@ -39,7 +47,7 @@ from mdgs.data.presets import PRESETS
 from mdgs.scenes import SCENES
 
 
-def bench(name: str, n_traj: int, n_frames: int, repeats: int) -> dict:
+def bench(name: str, n_traj: int, n_frames: int, repeats: int, keep: bool = False) -> dict:
     t = time.perf_counter()
     sc = load_scene(SCENES[name])
     setup = time.perf_counter() - t
@@ -70,26 +78,31 @@ def bench(name: str, n_traj: int, n_frames: int, repeats: int) -> dict:
             mujoco.mj_getState(m, d, init[i], spec)
         return init, np.ascontiguousarray(np.repeat(fr["ctrl"], k, axis=1))
 
-    gen, merge, raw = [], [], []
+    gen, write, merge, raw = [], [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(repeats + 1):  # repeat 0: warm-up, not counted
             t = time.perf_counter()
             fr = simulate(sc, "train", range(n_traj), seed=r, n_frames=n_frames)
-            part = Path(tmp) / f"part{r}.h5"
+            t1 = time.perf_counter()
+            part, final = Path(tmp) / f"part{r}.h5", Path(tmp) / f"train{r}.h5"
             write_file(part, attrs, sc.mjcf, static, fr)
-            g = time.perf_counter() - t
+            g, w = time.perf_counter() - t, time.perf_counter() - t1
             t = time.perf_counter()
-            merge_files([part], Path(tmp) / f"train{r}.h5", {"complete": True})
+            merge_files([part], final, {"complete": True})
             mg = time.perf_counter() - t
             init, ctrl = raw_inputs(fr)
             t = time.perf_counter()
             rollout.rollout(m, [d], init, ctrl if m.nu else None, nstep=n_frames * k)
             rw = time.perf_counter() - t
+            if not keep:
+                part.unlink()
+                final.unlink()
             if r:
                 gen.append(g)
+                write.append(w)
                 merge.append(mg)
                 raw.append(rw)
-    gen, merge, raw = np.array(gen), np.array(merge), np.array(raw)
+    gen, write, merge, raw = np.array(gen), np.array(write), np.array(merge), np.array(raw)
     return {
         "scene": name,
         "nodes": sc.inst.partition.n_nodes,
@@ -100,6 +113,7 @@ def bench(name: str, n_traj: int, n_frames: int, repeats: int) -> dict:
         "gen": float(np.median(steps / gen)),
         "ratio": float(np.median(raw / gen)),
         "ratio_merged": float(np.median(raw / (gen + merge))),
+        "write": float(np.median(write / raw)),
     }
 
 
@@ -116,16 +130,21 @@ def main() -> None:
     ap.add_argument(
         "--repeats", type=int, default=3, help="paired repeats (median), after a warm-up"
     )
+    ap.add_argument(
+        "--keep-files",
+        action="store_true",
+        help="keep every repeat's files (writes then grow the page cache; see above)",
+    )
     a = ap.parse_args()
     print(
-        f"{'scene':<26}{'nodes':>6}{'bodies':>7}{'steps':>9}  {'raw steps/s':>12}  {'generation steps/s':>19}  {'ratio':>6}  {'+merge':>7}"
+        f"{'scene':<26}{'nodes':>6}{'bodies':>7}{'steps':>9}  {'raw steps/s':>12}  {'generation steps/s':>19}  {'ratio':>6}  {'+merge':>7}  {'write':>6}"
     )
     ratios = []
     for name in a.scenes:
-        r = bench(name, a.traj, a.frames, a.repeats)
+        r = bench(name, a.traj, a.frames, a.repeats, keep=a.keep_files)
         ratios.append(r["ratio"])
         print(
-            f"{r['scene']:<26}{r['nodes']:>6}{r['bodies']:>7}{r['steps']:>9}  {r['raw']:>12,.0f}  {r['gen']:>19,.0f}  {r['ratio']:>6.2f}  {r['ratio_merged']:>7.2f}",
+            f"{r['scene']:<26}{r['nodes']:>6}{r['bodies']:>7}{r['steps']:>9}  {r['raw']:>12,.0f}  {r['gen']:>19,.0f}  {r['ratio']:>6.2f}  {r['ratio_merged']:>7.2f}  {r['write']:>6.2f}",
             flush=True,
         )
     print(f"{'geometric mean ratio':<52}{np.exp(np.mean(np.log(ratios))):>32.2f}")

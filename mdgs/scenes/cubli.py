@@ -34,8 +34,9 @@ from functools import lru_cache
 import mujoco
 import numpy as np
 import scipy.linalg
+from numba import njit
 
-from mdgs.scenes._mjcf import Mjcf, quat_to_mat
+from mdgs.scenes._mjcf import Mjcf
 from mdgs.scenes.controls import smooth_signal
 
 __all__ = ["Cubli"]
@@ -342,74 +343,124 @@ class _CubliController:
         self.corners = cubli._corners()
 
     def __call__(self, frame: int, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
-        c, p = self.c, self.p
-        Rn = qpos.shape[0]
-        quat = qpos[:, 3:7]
-        Rm = quat_to_mat(quat)  # [R, 3, 3]
-        pos = qpos[:, 0:3]
-        com = pos + Rm @ p["com"]
-        omega = np.einsum("rij,rj->ri", Rm, qvel[:, 3:6])  # world angular velocity
-        psi = qvel[:, self.dofs]  # [R, nw] wheel speeds relative to the cube
-        axes = Rm[:, :, self.k_axis].transpose(0, 2, 1)  # [R, nw, 3] wheel axes (world)
-        corners = pos[:, None] + np.einsum("rij,kj->rki", Rm, self.corners)  # [R, 8, 3]
-        zs = np.sort(corners[:, :, 2], axis=1)
-        tau = self.noise[:, frame].copy()
+        c = self.c
+        tau = np.empty((qpos.shape[0], self.nw))
+        _control(
+            frame, np.ascontiguousarray(qpos), np.ascontiguousarray(qvel), self.noise,
+            self.brake_frame, np.asarray(self.p["com"], float), self.corners, self.k_axis,
+            self.dofs, self.Iw, self.K_edge, np.asarray(self.K_corner, float), self.dt,
+            float(c.torque_limit), float(c.balance_torque), float(self.capture),
+            float(min(c.size)), tau,
+        )  # fmt: skip
+        return tau
 
-        # jump trajectories: brake the wheel for two frames
-        braking = (frame >= self.brake_frame) & (frame < self.brake_frame + 2)
-        if braking.any():
-            stop = -psi * self.Iw / self.dt
-            tau[braking] = np.clip(stop[braking], -c.torque_limit, c.torque_limit)
 
-        ez = np.array([0, 0, 1.0])
-        # corner balance: one corner clearly lowest
-        on_corner = (zs[:, 1] - zs[:, 0] > 0.25 * min(c.size)) & (self.nw >= 2)
-        # edge balance: two corners lowest, the third clearly higher
-        on_edge = (zs[:, 1] - zs[:, 0] < 0.01) & (zs[:, 2] - zs[:, 1] > 0.25 * min(c.size))
-        act = np.zeros((Rn, self.nw))
-        if on_edge.any():
-            low2 = np.argsort(corners[:, :, 2], axis=1)[:, :2]
-            pa = np.take_along_axis(corners, low2[:, :, None], 1)  # [R, 2, 3]
-            edge_dir = pa[:, 1] - pa[:, 0]
-            edge_dir /= np.linalg.norm(edge_dir, axis=1, keepdims=True)
-            pivot = pa.mean(1)
-            # which wheel is (anti)parallel to the edge
-            align = np.abs(np.einsum("rwi,ri->rw", axes, edge_dir))
-            w = np.argmax(align, 1)
-            ok = align[np.arange(Rn), w] > 0.95
-            a = axes[np.arange(Rn), w]
-            r = com - pivot
-            rp = r - (r * a).sum(1, keepdims=True) * a
-            th = np.arctan2((np.cross(np.broadcast_to(ez, rp.shape), rp) * a).sum(1), rp[:, 2])
-            thd = (omega * a).sum(1)
-            ps = psi[np.arange(Rn), w]
-            u = -(self.K_edge[w] * np.stack([th, thd, ps], 1)).sum(1)
-            use = on_edge & ok & (np.abs(th) < self.capture) & ~braking
-            idx = np.flatnonzero(use)
-            act[idx, w[idx]] = np.clip(u[idx], -c.balance_torque, c.balance_torque)
-            tau[idx, w[idx]] += act[idx, w[idx]]
-        if on_corner.any():
-            low = np.argmin(corners[:, :, 2], 1)
-            pivot = corners[np.arange(Rn), low]
-            r = com - pivot
-            tilt = np.cross(np.broadcast_to(ez, r.shape), r) / np.linalg.norm(
-                r, axis=1, keepdims=True
-            )
-            th_mag = np.arcsin(np.clip(np.linalg.norm(tilt, axis=1), 0, 1))
-            use = on_corner & (th_mag < self.capture) & ~braking & (r[:, 2] > 0)
-            if use.any():
-                i = np.flatnonzero(use)
-                hw = np.einsum("rw,rwi->ri", psi[i], axes[i])
-                # per horizontal axis u_k (world x, y): x_k = (tilt, tilt rate, wheel speed)
-                X = np.stack([tilt[i, :2], omega[i, :2], hw[:, :2]], -1)  # [n, 2, 3]
-                T = -(X @ self.K_corner)  # [n, 2] motor torque wanted along world x, y
-                Ah = axes[i][:, :, :2].transpose(0, 2, 1)  # [n, 2, nw]
-                # least-norm wheel torques: A^T (A A^T)^-1 T
-                sol = np.einsum(
-                    "niw,ni->nw",
-                    Ah,
-                    np.linalg.solve(Ah @ Ah.transpose(0, 2, 1), T[..., None])[..., 0],
+@njit(cache=True, nogil=True)
+def _control(frame, qpos, qvel, noise, brake_frame, com_b, corners_b, k_axis, dofs, Iw, K_edge, K_corner, dt, torque_limit, balance_torque, capture, side, tau):  # pragma: no cover  # fmt: skip
+    """Wheel torques ``tau [R, nw]`` of :class:`_CubliController` for state ``qpos``, ``qvel``.
+
+    Per trajectory: the frame's disturbance; braking (two frames from ``brake_frame``):
+    the torque that stops the wheels, instead; on an edge (two corners lowest, the
+    third clearly higher) the LQR of the wheel aligned with the edge on (tilt, tilt
+    rate, wheel speed); on a corner (one clearly lowest, two or more wheels) one LQR per
+    horizontal world axis, wheel torques the least-norm solution for the requested
+    horizontal torque. Balance torques are limited to ``balance_torque`` and act only
+    within ``capture`` rad of the balancing point; the total to ``torque_limit``.
+    """
+    nw = len(k_axis)
+    Rm = np.empty((3, 3))
+    zc = np.empty(8)
+    pc = np.empty((8, 3))
+    axes = np.empty((nw, 3))
+    for r in range(qpos.shape[0]):
+        w, x, y, z = qpos[r, 3], qpos[r, 4], qpos[r, 5], qpos[r, 6]
+        Rm[0, 0], Rm[0, 1], Rm[0, 2] = (
+            1 - 2 * (y * y + z * z),
+            2 * (x * y - w * z),
+            2 * (x * z + w * y),
+        )
+        Rm[1, 0], Rm[1, 1], Rm[1, 2] = (
+            2 * (x * y + w * z),
+            1 - 2 * (x * x + z * z),
+            2 * (y * z - w * x),
+        )
+        Rm[2, 0], Rm[2, 1], Rm[2, 2] = (
+            2 * (x * z - w * y),
+            2 * (y * z + w * x),
+            1 - 2 * (x * x + y * y),
+        )
+        com = np.empty(3)
+        omega = np.empty(3)
+        for i in range(3):
+            com[i] = qpos[r, i] + (Rm[i, 0] * com_b[0] + Rm[i, 1] * com_b[1] + Rm[i, 2] * com_b[2])
+            omega[i] = Rm[i, 0] * qvel[r, 3] + Rm[i, 1] * qvel[r, 4] + Rm[i, 2] * qvel[r, 5]
+        for j in range(nw):
+            for i in range(3):
+                axes[j, i] = Rm[i, k_axis[j]]
+        for k in range(8):
+            for i in range(3):
+                pc[k, i] = qpos[r, i] + (
+                    Rm[i, 0] * corners_b[k, 0]
+                    + Rm[i, 1] * corners_b[k, 1]
+                    + Rm[i, 2] * corners_b[k, 2]
                 )
-                scale = np.maximum(1.0, np.abs(sol).max(1) / c.balance_torque)
-                tau[i] += sol / scale[:, None]
-        return np.clip(tau, -c.torque_limit, c.torque_limit)
+            zc[k] = pc[k, 2]
+        order = np.argsort(zc)
+        z0, z1, z2 = zc[order[0]], zc[order[1]], zc[order[2]]
+        for j in range(nw):
+            tau[r, j] = noise[r, frame, j]
+        braking = brake_frame[r] <= frame < brake_frame[r] + 2
+        if braking:
+            for j in range(nw):
+                tau[r, j] = min(max(-qvel[r, dofs[j]] * Iw[j] / dt, -torque_limit), torque_limit)
+        on_corner = z1 - z0 > 0.25 * side and nw >= 2
+        on_edge = z1 - z0 < 0.01 and z2 - z1 > 0.25 * side
+        if on_edge and not braking:
+            a0, a1 = pc[order[0]], pc[order[1]]
+            e = a1 - a0
+            e /= np.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2])
+            best, wb = -1.0, 0
+            for j in range(nw):
+                al = abs(axes[j, 0] * e[0] + axes[j, 1] * e[1] + axes[j, 2] * e[2])
+                if al > best:
+                    best, wb = al, j
+            a = axes[wb]
+            rv = com - (a0 + a1) / 2
+            ra = rv[0] * a[0] + rv[1] * a[1] + rv[2] * a[2]
+            rp = rv - ra * a
+            th = np.arctan2(-rp[1] * a[0] + rp[0] * a[1], rp[2])
+            thd = omega[0] * a[0] + omega[1] * a[1] + omega[2] * a[2]
+            ps = qvel[r, dofs[wb]]
+            u = -(K_edge[wb, 0] * th + K_edge[wb, 1] * thd + K_edge[wb, 2] * ps)
+            if best > 0.95 and abs(th) < capture:
+                tau[r, wb] += min(max(u, -balance_torque), balance_torque)
+        if on_corner and not braking:
+            rv = com - pc[order[0]]
+            nr = np.sqrt(rv[0] * rv[0] + rv[1] * rv[1] + rv[2] * rv[2])
+            tx, ty = -rv[1] / nr, rv[0] / nr
+            th_mag = np.arcsin(min(max(np.sqrt(tx * tx + ty * ty), 0.0), 1.0))
+            if th_mag < capture and rv[2] > 0:
+                hx = hy = 0.0
+                for j in range(nw):
+                    hx += qvel[r, dofs[j]] * axes[j, 0]
+                    hy += qvel[r, dofs[j]] * axes[j, 1]
+                # per horizontal axis (world x, y): x_k = (tilt, tilt rate, wheel momentum)
+                T0 = -(tx * K_corner[0] + omega[0] * K_corner[1] + hx * K_corner[2])
+                T1 = -(ty * K_corner[0] + omega[1] * K_corner[1] + hy * K_corner[2])
+                # least-norm wheel torques: A^T (A A^T)^-1 T, A = horizontal wheel axes [2, nw]
+                m00 = m01 = m11 = 0.0
+                for j in range(nw):
+                    m00 += axes[j, 0] * axes[j, 0]
+                    m01 += axes[j, 0] * axes[j, 1]
+                    m11 += axes[j, 1] * axes[j, 1]
+                det = m00 * m11 - m01 * m01
+                y0 = (m11 * T0 - m01 * T1) / det
+                y1 = (m00 * T1 - m01 * T0) / det
+                big = 0.0
+                for j in range(nw):
+                    big = max(big, abs(axes[j, 0] * y0 + axes[j, 1] * y1))
+                scale = max(1.0, big / balance_torque)
+                for j in range(nw):
+                    tau[r, j] += (axes[j, 0] * y0 + axes[j, 1] * y1) / scale
+        for j in range(nw):
+            tau[r, j] = min(max(tau[r, j], -torque_limit), torque_limit)
