@@ -65,8 +65,10 @@ def main() -> None:
     scene = SceneGraph.from_static(static, spec.has_contact)
     N = scene.num_nodes
     frame_dt = float(loaded.inst.model.opt.timestep) * int(spec.substeps)
-    model = MDGS(ModelConfig(structure=not args.no_structure, integrator=args.integrator, dt=frame_dt),
-                 contact=spec.has_contact).eval()
+    model = MDGS(
+        ModelConfig(structure=not args.no_structure, integrator=args.integrator, dt=frame_dt),
+        contact=spec.has_contact,
+    ).eval()
 
     # a real state: frame 1 of a test trajectory of the scene
     fr = simulate(loaded, "test", [0], seed=0, n_frames=2)
@@ -101,23 +103,37 @@ def main() -> None:
 
     tm = _median_time(frame, args.repeats * 5)
 
-    print(f"scene {args.scene}: {N} nodes, contact branch {'on' if spec.has_contact else 'off'}, "
-          f"structure module {'off' if args.no_structure else 'on'}, integrator {args.integrator}, "
-          f"torch threads {torch.get_num_threads()}")
+    print(
+        f"scene {args.scene}: {N} nodes, contact branch {'on' if spec.has_contact else 'off'}, "
+        f"structure module {'off' if args.no_structure else 'on'}, integrator {args.integrator}, "
+        f"torch threads {torch.get_num_threads()}"
+    )
     print(f"{'':32s}{'median':>12s}{'per scene':>14s}")
-    print(f"{'MuJoCo frame (' + str(substeps) + ' steps)':32s}{tm * 1e3:10.3f} ms{tm * 1e3:12.3f} ms")
-    print(f"{'MDGS step, 1 scene':32s}{t1 * 1e3:10.3f} ms{t1 * 1e3:12.3f} ms   ({t1 / tm:.0f}x MuJoCo)")
-    print(f"{'MDGS step, batch ' + str(args.batch):32s}{tB * 1e3:10.3f} ms{tB / args.batch * 1e3:12.3f} ms   "
-          f"({tB / args.batch / tm:.1f}x MuJoCo)")
-    print(f"dense matmul [{args.batch * N}x{model.config.hidden}]@[{model.config.hidden}x{model.config.hidden}]: "
-          f"{rate / 1e9:.1f} GFLOP/s")
-    print(f"MDGS batched step: {flops / 1e9:.3f} GFLOP counted -> {flops / tB / 1e9:.1f} GFLOP/s = "
-          f"{100 * flops / tB / rate:.0f} % of the matmul rate (target >= 30 %)")
+    print(
+        f"{'MuJoCo frame (' + str(substeps) + ' steps)':32s}{tm * 1e3:10.3f} ms{tm * 1e3:12.3f} ms"
+    )
+    print(
+        f"{'MDGS step, 1 scene':32s}{t1 * 1e3:10.3f} ms{t1 * 1e3:12.3f} ms   ({t1 / tm:.0f}x MuJoCo)"
+    )
+    print(
+        f"{'MDGS step, batch ' + str(args.batch):32s}{tB * 1e3:10.3f} ms{tB / args.batch * 1e3:12.3f} ms   "
+        f"({tB / args.batch / tm:.1f}x MuJoCo)"
+    )
+    print(
+        f"dense matmul [{args.batch * N}x{model.config.hidden}]@[{model.config.hidden}x{model.config.hidden}]: "
+        f"{rate / 1e9:.1f} GFLOP/s"
+    )
+    print(
+        f"MDGS batched step: {flops / 1e9:.3f} GFLOP counted -> {flops / tB / 1e9:.1f} GFLOP/s = "
+        f"{100 * flops / tB / rate:.0f} % of the matmul rate (target >= 30 %)"
+    )
     by_op = {str(k): v for k, v in fc.get_flop_counts().get("Global", {}).items()}
     dense_prop = sum(v for k, v in by_op.items() if "bmm" in k)
     print("  by op: " + ", ".join(f"{k} {v / 1e9:.3f} GFLOP" for k, v in by_op.items()))
-    print(f"  without the dense graph propagation (bmm, counts zeros of the adjacency): "
-          f"{(flops - dense_prop) / tB / 1e9:.1f} GFLOP/s = {100 * (flops - dense_prop) / tB / rate:.0f} % of the matmul rate")
+    print(
+        f"  without the dense graph propagation (bmm, counts zeros of the adjacency): "
+        f"{(flops - dense_prop) / tB / 1e9:.1f} GFLOP/s = {100 * (flops - dense_prop) / tB / rate:.0f} % of the matmul rate"
+    )
 
 
 if __name__ == "__main__":
