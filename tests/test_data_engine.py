@@ -142,3 +142,43 @@ def test_merge_copies_stored_chunks_and_recodes_parts_with_other_filters(
     with open_dataset(tmp_path / "m.h5", verify=True) as ds:
         for key, v in strike_frames.items():
             np.testing.assert_array_equal(ds.frames(key), v, err_msg=key)
+
+
+def test_nearest_node_lookup_equals_brute_force_search(strike):
+    """The compiled lookup (grid where a voxel has one answer, exact search elsewhere) returns
+    a node at the smallest distance, for points inside, on the edge of and outside the grid."""
+    from mdgs.data import _kernels
+
+    red = FrameReducer(strike.inst, strike.spec.substeps)
+    cent, nodes, lo, h, res, table, toff, noff = red.loc
+    rng = np.random.default_rng(0)
+    for c in range(red.C):
+        mine = cent[noff[c] : noff[c + 1]]
+        span = lo[c] + h[c] * res[c] - lo[c]
+        pts = lo[c] - 0.2 * span + rng.random((400, 3)) * 1.4 * span
+        for p in pts:
+            n = _kernels._nearest(*p, cent, lo[c], h[c], res[c], table, toff[c], noff[c], noff[c + 1])  # fmt: skip
+            assert noff[c] <= n < noff[c + 1]
+            d = np.sum((mine - p) ** 2, axis=1)
+            assert np.sum((cent[n] - p) ** 2) <= d.min() * (1 + 1e-12) + 1e-300
+
+
+def test_contacts_beyond_the_reported_slots_still_sum_to_the_body_force():
+    """With one contact slot per body, the force of the other contacts is put on a node too:
+    node contact forces sum to each body's contact force (cfrc_ext), and overflow is counted."""
+    from mdgs.data.engine import LoadedScene
+    from mdgs.data.record import instrument
+
+    sc = load_scene(get_scene("cubli-triple"))
+    one = LoadedScene(spec=sc.spec, mjcf=sc.mjcf, inst=instrument(sc.mjcf, contact_slots=1))
+    fr = simulate(one, "train", range(3), seed=0, n_frames=40)
+    st = static_arrays(one)
+    assert fr["contact_overflow"].sum() > 0  # a cube on the floor touches at several points
+    for bi, b in enumerate(st["body_id"]):
+        sel = st["node_body"] == b
+        np.testing.assert_allclose(
+            fr["node_contact_force"][:, :, sel].sum(2),
+            fr["body_contact_force"][:, :, bi],
+            rtol=0,
+            atol=1e-10 * max(1.0, np.abs(fr["body_contact_force"]).max()),
+        )
