@@ -24,6 +24,16 @@ _JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
 
 
 @njit(**_JIT)
+def _moment(sub, xipos, x, s, rt, b, fx, fy, fz):  # pragma: no cover
+    """``(c - com) x f`` at step ``s``: what moving a wrench of force ``f`` from the tree's
+    reference point ``c = sub[rt]`` to body ``b``'s centre of mass adds to its torque."""
+    rx = sub[x, s, rt, 0] - xipos[x, s, b, 0]
+    ry = sub[x, s, rt, 1] - xipos[x, s, b, 1]
+    rz = sub[x, s, rt, 2] - xipos[x, s, b, 2]
+    return ry * fz - rz * fy, rz * fx - rx * fz, rx * fy - ry * fx
+
+
+@njit(**_JIT)
 def joint_loads(cint, xipos, sub, root, child_ptr, child_idx, k, joint, fint):  # pragma: no cover
     """Joint wrenches of every body about its centre of mass, frame means.
 
@@ -52,12 +62,10 @@ def joint_loads(cint, xipos, sub, root, child_ptr, child_idx, k, joint, fint):  
                     fx -= cint[x, s, c, 3]
                     fy -= cint[x, s, c, 4]
                     fz -= cint[x, s, c, 5]
-                rx = sub[x, s, rt, 0] - xipos[x, s, b, 0]
-                ry = sub[x, s, rt, 1] - xipos[x, s, b, 1]
-                rz = sub[x, s, rt, 2] - xipos[x, s, b, 2]
-                c0 += ry * fz - rz * fy
-                c1 += rz * fx - rx * fz
-                c2 += rx * fy - ry * fx
+                m0, m1, m2 = _moment(sub, xipos, x, s, rt, b, fx, fy, fz)
+                c0 += m0
+                c1 += m1
+                c2 += m2
             cr = (c0, c1, c2)
             for i in range(6):
                 w = W[b, i]
@@ -171,12 +179,10 @@ def contact_loads(rows, sdc, cext, xpos, xquat, xipos, sub, root, cb, slot0, nsl
                 for i in range(6):
                     e[i] += cext[xi, s, b, i]
                 fx, fy, fz = cext[xi, s, b, 3], cext[xi, s, b, 4], cext[xi, s, b, 5]
-                rx = sub[x, s, rt, 0] - xipos[x, s, b, 0]
-                ry = sub[x, s, rt, 1] - xipos[x, s, b, 1]
-                rz = sub[x, s, rt, 2] - xipos[x, s, b, 2]
-                c0 += ry * fz - rz * fy
-                c1 += rz * fx - rx * fz
-                c2 += rx * fy - ry * fx
+                m0, m1, m2 = _moment(sub, xipos, x, s, rt, b, fx, fy, fz)
+                c0 += m0
+                c1 += m1
+                c2 += m2
             wrench[x, b - 1, 0] = (e[0] + c0) / k
             wrench[x, b - 1, 1] = (e[1] + c1) / k
             wrench[x, b - 1, 2] = (e[2] + c2) / k
