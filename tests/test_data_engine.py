@@ -182,3 +182,51 @@ def test_contacts_beyond_the_reported_slots_still_sum_to_the_body_force():
             rtol=0,
             atol=1e-10 * max(1.0, np.abs(fr["body_contact_force"]).max()),
         )
+
+
+_SLIDE_CART = """
+<mujoco>
+  <option timestep="0.002"/>
+  <worldbody>
+    <geom type="plane" size="3 3 0.1"/>
+    <body name="cart" pos="0 0 0.3">
+      <joint name="rail" type="slide" axis="1 0 0"/>
+      <geom type="box" size="0.2 0.1 0.05" mass="2"/>
+      <body name="pole" pos="0.1 0 0.05">
+        <joint name="hinge" type="hinge" axis="0 1 0"/>
+        <geom type="capsule" fromto="0 0 0 0 0 0.4" size="0.03"/>
+      </body>
+    </body>
+    <body name="box" pos="0.3 0 1">
+      <freejoint/>
+      <geom type="box" size="0.08 0.08 0.08"/>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor joint="rail" gear="10"/>
+    <motor joint="hinge" gear="1"/>
+  </actuator>
+</mujoco>
+"""
+
+
+def test_slide_actuator_loads_balance_mujocos_accelerations(tmp_path):
+    """A user MJCF with a slide-driven cart carrying a hinged pole, hit by a falling box:
+    per body, m g + contact + actuator + joint forces = m a (MuJoCo's), to round-off, and
+    the slide actuator's force acts on the cart and, opposite, on the world."""
+    from mdgs.scenes import user_scene
+
+    path = tmp_path / "cart.xml"
+    path.write_text(_SLIDE_CART)
+    sc = load_scene(user_scene(str(path)))
+    fr, st = simulate(sc, "train", range(3), seed=0, n_frames=60), static_arrays(sc)
+    m, g = st["body_mass"][None, None, :, None], sc.inst.model.opt.gravity
+    loads = m * g + fr["body_contact_force"] + fr["body_actuator_force"] + fr["body_joint_force"]
+    ma = m * fr["body_acc"]
+    assert np.abs(loads - ma).max() < 1e-9 * np.abs(ma).max()
+    cart = list(st["body_names"]).index("cart")
+    # the rail's motor pushes the cart along x with gear x control (10 u, held over a frame)
+    push = fr["body_actuator_force"][:, :, cart]
+    assert np.abs(push[..., 0]).max() > 1.0
+    np.testing.assert_allclose(push[..., 0], 10 * fr["ctrl"][..., 0], rtol=1e-12, atol=1e-12)
+    assert np.abs(push[..., 1:]).max() < 1e-12

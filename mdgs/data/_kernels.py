@@ -24,12 +24,13 @@ _JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
 
 
 @njit(**_JIT)
-def _moment(sub, xipos, x, s, rt, b, fx, fy, fz):  # pragma: no cover
-    """``(c - com) x f`` at step ``s``: what moving a wrench of force ``f`` from the tree's
-    reference point ``c = sub[rt]`` to body ``b``'s centre of mass adds to its torque."""
-    rx = sub[x, s, rt, 0] - xipos[x, s, b, 0]
-    ry = sub[x, s, rt, 1] - xipos[x, s, b, 1]
-    rz = sub[x, s, rt, 2] - xipos[x, s, b, 2]
+def _moment(pts, xipos, x, s, i, b, fx, fy, fz):  # pragma: no cover
+    """``(c - com) x f`` at step ``s``, ``c = pts[x, s, i]``: the torque about body ``b``'s
+    centre of mass of a force ``f`` acting at ``c`` (what moving a wrench from ``c`` to the
+    centre of mass adds to its torque)."""
+    rx = pts[x, s, i, 0] - xipos[x, s, b, 0]
+    ry = pts[x, s, i, 1] - xipos[x, s, b, 1]
+    rz = pts[x, s, i, 2] - xipos[x, s, b, 2]
     return ry * fz - rz * fy, rz * fx - rx * fz, rx * fy - ry * fx
 
 
@@ -113,19 +114,14 @@ def actuator_loads(qfrc, xaxis, xanchor, xipos, dof, jnt, body, parent, slide, k
                 g1 += v1
                 g2 += v2
                 if slide[j]:
-                    b, p = body[j], parent[j]
-                    r0 = xanchor[x, s, jnt[j], 0] - xipos[x, s, b, 0]
-                    r1 = xanchor[x, s, jnt[j], 1] - xipos[x, s, b, 1]
-                    r2 = xanchor[x, s, jnt[j], 2] - xipos[x, s, b, 2]
-                    a0 += r1 * v2 - r2 * v1
-                    a1 += r2 * v0 - r0 * v2
-                    a2 += r0 * v1 - r1 * v0
-                    r0 = xanchor[x, s, jnt[j], 0] - xipos[x, s, p, 0]
-                    r1 = xanchor[x, s, jnt[j], 1] - xipos[x, s, p, 1]
-                    r2 = xanchor[x, s, jnt[j], 2] - xipos[x, s, p, 2]
-                    p0 += r1 * v2 - r2 * v1
-                    p1 += r2 * v0 - r0 * v2
-                    p2 += r0 * v1 - r1 * v0
+                    m0, m1, m2 = _moment(xanchor, xipos, x, s, jnt[j], body[j], v0, v1, v2)
+                    a0 += m0
+                    a1 += m1
+                    a2 += m2
+                    m0, m1, m2 = _moment(xanchor, xipos, x, s, jnt[j], parent[j], v0, v1, v2)
+                    p0 += m0
+                    p1 += m1
+                    p2 += m2
             gen[x, j, 0], gen[x, j, 1], gen[x, j, 2] = g0 / k, g1 / k, g2 / k
             arm_b[x, j, 0], arm_b[x, j, 1], arm_b[x, j, 2] = a0 / k, a1 / k, a2 / k
             arm_p[x, j, 0], arm_p[x, j, 1], arm_p[x, j, 2] = p0 / k, p1 / k, p2 / k
