@@ -6,15 +6,45 @@ import pytest
 from kane.claims import CLAIMS, run_checks
 from kane.counterexamples import replay
 
-ISSUE_IDS = ["eq3", "lemmaA1", "eq17", "eq19", "eq23", "eq11", "eq30", "eq34", "eq35", "eq36", "eq37", "eq12", "eq15"]
+ISSUE_IDS = [
+    "eq3",
+    "lemmaA1",
+    "eq17",
+    "eq19",
+    "eq23",
+    "eq11",
+    "eq30",
+    "eq34",
+    "eq35",
+    "eq36",
+    "eq37",
+    "eq12",
+    "eq15",
+]
 
 # Verdicts found by the checks (see the closing note of the kane issue). A test fails if a verdict flips.
 EXPECTED = {
-    "eq3": "holds", "lemmaA1": "holds", "eq17": "holds", "eq19": "holds", "eq15": "holds",
-    "eq23": "refuted", "eq11": "refuted", "eq30": "refuted", "eq34": "refuted", "eq35": "refuted",
-    "eq36": "refuted", "eq37": "refuted", "eq12": "refuted",
-    "eq23.corrected": "holds", "eq11.corrected": "holds", "eq30.corrected": "holds", "eq34.corrected": "holds",
-    "eq35.corrected": "holds", "eq36.corrected": "holds", "eq37.corrected": "holds", "eq12.corrected": "holds",
+    "eq3": "holds",
+    "lemmaA1": "holds",
+    "eq17": "holds",
+    "eq19": "holds",
+    "eq15": "holds",
+    "eq23": "refuted",
+    "eq11": "refuted",
+    "eq30": "refuted",
+    "eq34": "refuted",
+    "eq35": "refuted",
+    "eq36": "refuted",
+    "eq37": "refuted",
+    "eq12": "refuted",
+    "eq23.corrected": "holds",
+    "eq11.corrected": "holds",
+    "eq30.corrected": "holds",
+    "eq34.corrected": "holds",
+    "eq35.corrected": "holds",
+    "eq36.corrected": "holds",
+    "eq37.corrected": "holds",
+    "eq12.corrected": "holds",
 }
 
 
@@ -63,8 +93,16 @@ def test_casadi_counterexample_replays_as_violation_in_mujoco_and_pinocchio(resu
 
 def test_solid_disc_exceeds_the_sphere_bound_textbook():
     """Solid disc about its axis: I = m R^2 / 2 (any dynamics textbook) > (2/5) m tau^2 as thickness -> 0."""
-    rep = replay({"claim_id": "eq36", "kind": "mujoco_geom", "geom": "cylinder", "size": [0.1, 1e-4], "density": 1000.0})
-    (_, lhs, rhs), = rep.rows
+    rep = replay(
+        {
+            "claim_id": "eq36",
+            "kind": "mujoco_geom",
+            "geom": "cylinder",
+            "size": [0.1, 1e-4],
+            "density": 1000.0,
+        }
+    )
+    ((_, lhs, rhs),) = rep.rows
     mass = 1000.0 * np.pi * 0.1**2 * 2e-4
     assert lhs == pytest.approx(mass * 0.1**2 / 2, rel=1e-6)
     assert lhs > rhs
@@ -73,9 +111,17 @@ def test_solid_disc_exceeds_the_sphere_bound_textbook():
 def test_ring_attains_the_corrected_inertia_bound():
     """Four equal point masses on a circle of radius tau: I_z = M tau^2, the corrected bound is tight."""
     ring = np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]], float)
-    cex = {"claim_id": "eq36.corrected", "kind": "element",
-           "sample": {"masses": [1, 1, 1, 1], "offsets": ring.tolist(), "forces": np.zeros((4, 3)).tolist(),
-                      "omega": [0, 0, 0], "alpha": [0, 0, 0]}}
+    cex = {
+        "claim_id": "eq36.corrected",
+        "kind": "element",
+        "sample": {
+            "masses": [1, 1, 1, 1],
+            "offsets": ring.tolist(),
+            "forces": np.zeros((4, 3)).tolist(),
+            "omega": [0, 0, 0],
+            "alpha": [0, 0, 0],
+        },
+    }
     for _, lhs, rhs in replay(cex).rows:
         assert lhs == pytest.approx(rhs, rel=1e-6)
 

@@ -32,11 +32,20 @@ class _Claim:
 
 _CLAIMS = {
     "eq3": _Claim("eq3", "Kane's equations", "K + K* = 0 for every generalized speed.", "(3)"),
-    "eq34": _Claim("eq34", "moment bound", "|sum r x F . w| <= tau sum |R| w.", "(34)", "eq34.corrected"),
-    "eq34.corrected": _Claim("eq34.corrected", "moment bound (corrected)", "|sum r x F . w| <= tau sum |F| w.", "(34)"),
+    "eq34": _Claim(
+        "eq34", "moment bound", "|sum r x F . w| <= tau sum |R| w.", "(34)", "eq34.corrected"
+    ),
+    "eq34.corrected": _Claim(
+        "eq34.corrected", "moment bound (corrected)", "|sum r x F . w| <= tau sum |F| w.", "(34)"
+    ),
 }
 
-_CEX = {"claim_id": "eq34", "masses": [1.0, 1.0], "offsets": [[1.0, 0, 0], [-1.0, 0, 0]], "forces": [[0, 1.0, 0], [0, -1.0, 0]]}
+_CEX = {
+    "claim_id": "eq34",
+    "masses": [1.0, 1.0],
+    "offsets": [[1.0, 0, 0], [-1.0, 0, 0]],
+    "forces": [[0, 1.0, 0], [0, -1.0, 0]],
+}
 
 
 def _holds(claim_id="eq3", case="free_box", route="pinocchio"):
@@ -44,11 +53,35 @@ def _holds(claim_id="eq3", case="free_box", route="pinocchio"):
 
 
 def _refuted():
-    return CheckResult("eq34", "couple", "casadi", "refuted", 2.0, 1e-9, {"L": 2}, _CEX, "eq34.corrected", "couple with zero resultant", 0.1)
+    return CheckResult(
+        "eq34",
+        "couple",
+        "casadi",
+        "refuted",
+        2.0,
+        1e-9,
+        {"L": 2},
+        _CEX,
+        "eq34.corrected",
+        "couple with zero resultant",
+        0.1,
+    )
 
 
 def _error():
-    return CheckResult("eq3", "cubli", "mujoco", "error", float("nan"), 1e-9, {}, None, None, "MuJoCo model failed to load", 0.0)
+    return CheckResult(
+        "eq3",
+        "cubli",
+        "mujoco",
+        "error",
+        float("nan"),
+        1e-9,
+        {},
+        None,
+        None,
+        "MuJoCo model failed to load",
+        0.0,
+    )
 
 
 def _install_fake_kane(monkeypatch, results, replay=None):
@@ -104,7 +137,9 @@ def test_all_hold_exit_0_and_summary_line(monkeypatch, capsys):
 
 
 def test_refuted_exit_1_shows_counterexample_and_corrected_verdict(monkeypatch, capsys):
-    _install_fake_kane(monkeypatch, [_holds(), _refuted(), _holds("eq34.corrected", "couple", "casadi")])
+    _install_fake_kane(
+        monkeypatch, [_holds(), _refuted(), _holds("eq34.corrected", "couple", "casadi")]
+    )
     code, out, err = _run(capsys)
     assert code == 1
     assert out.strip().splitlines()[-1] == "3 checks: 2 hold, 1 refuted, 0 errors"
@@ -124,7 +159,9 @@ def test_error_exit_2_says_why(monkeypatch, capsys):
 
 def test_selection_quick_and_seed_reach_run_checks(monkeypatch, capsys):
     calls = _install_fake_kane(monkeypatch, [_holds(), _refuted()])
-    code, out, _ = _run(capsys, "--check", "eq3", "--case", "free_box", "--case", "cubli", "--quick", "--seed", "7")
+    code, out, _ = _run(
+        capsys, "--check", "eq3", "--case", "free_box", "--case", "cubli", "--quick", "--seed", "7"
+    )
     assert calls == {"claim_ids": ["eq3"], "cases": ["free_box", "cubli"], "quick": True, "seed": 7}
     assert code == 0
 
@@ -148,19 +185,36 @@ def test_bad_flag_is_one_sentence_exit_2(monkeypatch, capsys, args):
 
 
 def test_json_report_schema(monkeypatch, capsys, tmp_path):
-    _install_fake_kane(monkeypatch, [_holds(), _refuted(), _holds("eq34.corrected", "couple", "casadi")])
+    _install_fake_kane(
+        monkeypatch, [_holds(), _refuted(), _holds("eq34.corrected", "couple", "casadi")]
+    )
     path = tmp_path / "report.json"
     code, out, err = _run(capsys, "--json", str(path))
     assert code == 1
     rep = json.loads(path.read_text())
     assert set(rep) == {"checks", "summary", "environment"}
-    keys = {"id", "claim", "case", "route", "verdict", "residual", "tolerance", "assumptions", "counterexample", "corrected"}
+    keys = {
+        "id",
+        "claim",
+        "case",
+        "route",
+        "verdict",
+        "residual",
+        "tolerance",
+        "assumptions",
+        "counterexample",
+        "corrected",
+    }
     assert all(keys <= set(c) for c in rep["checks"])
     assert rep["summary"] == {"checks": 3, "hold": 2, "refuted": 1, "errors": 0}
     assert {"sympy", "pin", "mujoco", "casadi", "torch", "mdgs"} <= set(rep["environment"])
     refuted = rep["checks"][1]
     assert refuted["counterexample"] == _CEX
-    assert refuted["corrected"] == {"id": "eq34.corrected", "statement": _CLAIMS["eq34.corrected"].statement, "verdict": "holds"}
+    assert refuted["corrected"] == {
+        "id": "eq34.corrected",
+        "statement": _CLAIMS["eq34.corrected"].statement,
+        "verdict": "holds",
+    }
     assert rep["checks"][0]["counterexample"] is None and rep["checks"][0]["corrected"] is None
     assert [p.name for p in tmp_path.iterdir()] == ["report.json"]  # no temp file left behind
 
@@ -194,9 +248,15 @@ def test_replay_accepts_the_reports_counterexample(monkeypatch, capsys, tmp_path
 
 @pytest.mark.parametrize(
     "content, phrase",
-    [("{not json", "not valid JSON"), ('{"masses": [1.0]}', "no claim_id"), ("[1, 2]", "expected a JSON object")],
+    [
+        ("{not json", "not valid JSON"),
+        ('{"masses": [1.0]}', "no claim_id"),
+        ("[1, 2]", "expected a JSON object"),
+    ],
 )
-def test_replay_malformed_file_is_one_sentence_exit_2(monkeypatch, capsys, tmp_path, content, phrase):
+def test_replay_malformed_file_is_one_sentence_exit_2(
+    monkeypatch, capsys, tmp_path, content, phrase
+):
     _install_fake_kane(monkeypatch, [_holds()])
     path = tmp_path / "cex.json"
     path.write_text(content)

@@ -34,12 +34,18 @@ def test_every_page_has_an_executed_example_or_none_claimed():
     assert len(list(_python_blocks())) >= 3
 
 
-@pytest.mark.skipif(shutil.which("mkdocs") is None and not (Path(sys.executable).parent / "mkdocs").exists(), reason="mkdocs not installed")
+@pytest.mark.skipif(
+    shutil.which("mkdocs") is None and not (Path(sys.executable).parent / "mkdocs").exists(),
+    reason="mkdocs not installed",
+)
 def test_mkdocs_build_strict(tmp_path):
     site = tmp_path / "site"
     run = subprocess.run(
         [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(site)],
-        cwd=ROOT, capture_output=True, text=True, timeout=600,
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
         env={**__import__("os").environ, "NO_MKDOCS_2_WARNING": "1"},
     )
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
@@ -50,7 +56,19 @@ def test_mkdocs_build_strict(tmp_path):
     # every claim of the derivation is rendered from kane's sympy expression, next to a verdict
     from kane.claims import CLAIMS
 
-    for claim_id in ("eq3", "eq17", "eq19", "eq11", "eq30", "eq34", "eq35", "eq36", "eq37", "eq12", "eq15"):
+    for claim_id in (
+        "eq3",
+        "eq17",
+        "eq19",
+        "eq11",
+        "eq30",
+        "eq34",
+        "eq35",
+        "eq36",
+        "eq37",
+        "eq12",
+        "eq15",
+    ):
         assert f"Eq. {CLAIMS[claim_id].equation}." in theory, claim_id
     assert theory.count('class="arithmatex"') >= 11
     assert re.search(r"\d+ checks?: \d+ holds?, \d+ refuted, \d+ errors?", report)

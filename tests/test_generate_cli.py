@@ -171,5 +171,8 @@ def test_every_scene_generates_tiny_and_its_claims_hold(name, tmp_path):
         results = check_dataset(tmp_path / f"{split}.h5")
         assert {r["claim_id"] for r in results} >= {"newton"}
         for r in results:
-            if r["claim_id"] in ("newton", "eq11.corrected"):  # loads vs MuJoCo's accelerations, nine digits
+            if r["claim_id"] in (
+                "newton",
+                "eq11.corrected",
+            ):  # loads vs MuJoCo's accelerations, nine digits
                 assert r["verdict"] == "holds", r

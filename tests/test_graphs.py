@@ -64,10 +64,14 @@ def test_gcn_norm_matches_definition():
     A[[0, 1, 1, 2], [1, 0, 2, 1]] = 1
     A += np.eye(3)
     d = A.sum(1) ** -0.5
-    np.testing.assert_allclose(gcn_norm(ei, 3).to_dense().numpy(), d[:, None] * A * d[None], atol=1e-7)
+    np.testing.assert_allclose(
+        gcn_norm(ei, 3).to_dense().numpy(), d[:, None] * A * d[None], atol=1e-7
+    )
     # duplicates merged, existing self-loops not doubled
     ei2 = torch.cat([ei, ei, torch.tensor([[0], [0]])], 1)
-    np.testing.assert_allclose(gcn_norm(ei2, 3).to_dense().numpy(), d[:, None] * A * d[None], atol=1e-7)
+    np.testing.assert_allclose(
+        gcn_norm(ei2, 3).to_dense().numpy(), d[:, None] * A * d[None], atol=1e-7
+    )
 
 
 @pytest.mark.parametrize("dense_max", [0, 100])

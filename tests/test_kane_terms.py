@@ -48,12 +48,18 @@ def test_element_rejects_bad_input():
 def test_generalized_inertia_force_by_elements_equals_point_masses(seed):
     """Eqs. (18) and (19) agree for random bodies, motions and partitions (Lemma A.1)."""
     rng = np.random.default_rng(seed)
-    els = partition_box_k(rng.uniform(0.05, 0.5, 3), int(rng.choice([1, 2, 8, 27])), mass=1.3, rng=rng, jitter=0.5)
+    els = partition_box_k(
+        rng.uniform(0.05, 0.5, 3), int(rng.choice([1, 2, 8, 27])), mass=1.3, rng=rng, jitter=0.5
+    )
     R = np.linalg.qr(rng.standard_normal((3, 3)))[0]
     kin = terms.element_kinematics(els, R, rng.standard_normal(3), *rng.standard_normal((4, 3)))
-    com = (np.array([e.mass for e in els])[:, None] * kin.centroid).sum(0) / sum(e.mass for e in els)
+    com = (np.array([e.mass for e in els])[:, None] * kin.centroid).sum(0) / sum(
+        e.mass for e in els
+    )
     u, w = terms.free_body_partials(kin, com)
-    t = terms.kane_terms(els, kin, terms.ElementLoads([rng.standard_normal((len(e.masses), 3)) for e in els]), u, w)
+    t = terms.kane_terms(
+        els, kin, terms.ElementLoads([rng.standard_normal((len(e.masses), 3)) for e in els]), u, w
+    )
     np.testing.assert_allclose(t.K, t.K_points, rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(t.Kstar, t.Kstar_points, rtol=1e-10, atol=1e-10)
 
@@ -63,7 +69,10 @@ def test_symbolic_element_identities_simplify_to_zero():
     assert ids["eq17"] == 0 and ids["eq19"] == 0 and all(c == 0 for c in ids["Lstar"])
 
 
-@pytest.mark.parametrize("name", ["eq11_term", "paper_bound_term", "corrected_bound_term", "loss_sup", "loss_inf", "loss_cst"])
+@pytest.mark.parametrize(
+    "name",
+    ["eq11_term", "paper_bound_term", "corrected_bound_term", "loss_sup", "loss_inf", "loss_cst"],
+)
 def test_generated_numpy_and_torch_functions_agree_with_sympy(name):
     torch = pytest.importorskip("torch")
     names, _ = terms.loss_functions("numpy")[name]
@@ -72,8 +81,13 @@ def test_generated_numpy_and_torch_functions_agree_with_sympy(name):
     f_t = terms.loss_functions("torch")[name][1]
     rng = np.random.default_rng(1)
     for _ in range(20):
-        vals = {n: float(rng.uniform(0.1, 2.0) if n in ("delta", "M", "tau") else rng.uniform(-2, 2)) for n in names}
-        exact = float(expr.subs({terms.LOSS_SYMBOLS[n]: sp.Float(v, 30) for n, v in vals.items()}).evalf(30))
+        vals = {
+            n: float(rng.uniform(0.1, 2.0) if n in ("delta", "M", "tau") else rng.uniform(-2, 2))
+            for n in names
+        }
+        exact = float(
+            expr.subs({terms.LOSS_SYMBOLS[n]: sp.Float(v, 30) for n, v in vals.items()}).evalf(30)
+        )
         got_np = float(f_np(*[vals[n] for n in names]))
         got_t = float(f_t(*[torch.tensor(vals[n], dtype=torch.float64) for n in names]))
         assert got_np == pytest.approx(exact, rel=1e-12, abs=1e-12)

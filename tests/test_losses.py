@@ -15,7 +15,9 @@ from mdgs.losses import angular_rate, constraint_loss, constraint_sums, mse_loss
 
 _SPECS = {
     "free": BoxBodySpec(divisions=(2, 2, 2), omega0=(1.0, 2.0, 3.0), v0=(0.3, -0.1, 0.5)),
-    "floor": BoxBodySpec(divisions=(2, 2, 2), floor=True, height=0.12, omega0=(0.5, 1.0, 0.2), v0=(0.3, 0.0, -0.5)),
+    "floor": BoxBodySpec(
+        divisions=(2, 2, 2), floor=True, height=0.12, omega0=(0.5, 1.0, 0.2), v0=(0.3, 0.0, -0.5)
+    ),
 }
 
 
@@ -24,8 +26,17 @@ def _trajectory(name, n_steps):
     t = {k: torch.tensor(getattr(tr, k)) for k in ("x", "v", "force", "mass", "tau", "omega")}
     n = t["x"].shape[1]
     return dict(
-        x=t["x"][:-1], v=t["v"][:-1], xn=t["x"][1:], vn=t["v"][1:], F=t["force"][:-1], mass=t["mass"], tau=t["tau"],
-        omega=t["omega"], seg=torch.zeros(n, dtype=torch.long), dt=tr.dt, weight=float(t["mass"].sum()) * 9.81,
+        x=t["x"][:-1],
+        v=t["v"][:-1],
+        xn=t["x"][1:],
+        vn=t["v"][1:],
+        F=t["force"][:-1],
+        mass=t["mass"],
+        tau=t["tau"],
+        omega=t["omega"],
+        seg=torch.zeros(n, dtype=torch.long),
+        dt=tr.dt,
+        weight=float(t["mass"].sum()) * 9.81,
         n_contacts=int(tr.n_contacts.sum()),
     )
 
@@ -36,8 +47,20 @@ def traj():
 
 
 def _loss(d, F, bound, speeds=(0, 1, 2)):
-    return constraint_loss(F, d["x"], d["v"], d["xn"], d["vn"], d["mass"], d["tau"], d["seg"], 1, d["dt"],
-                           bound=bound, speeds=speeds)
+    return constraint_loss(
+        F,
+        d["x"],
+        d["v"],
+        d["xn"],
+        d["vn"],
+        d["mass"],
+        d["tau"],
+        d["seg"],
+        1,
+        d["dt"],
+        bound=bound,
+        speeds=speeds,
+    )
 
 
 @pytest.mark.parametrize("bound", ["paper", "corrected"])
@@ -46,15 +69,28 @@ def test_constraint_is_zero_on_ground_truth(scene, bound):
     """Free fall with spin, and bouncing/sliding on a floor (contact forces in the recorded resultants)."""
     traj = _trajectory(scene, 200 if scene == "floor" else 30)
     assert scene == "free" or traj["n_contacts"] > 0
-    S, _ = constraint_sums(traj["F"], traj["x"], traj["v"], traj["xn"], traj["vn"], traj["mass"], traj["tau"],
-                           traj["seg"], 1, traj["dt"], bound=bound)
+    S, _ = constraint_sums(
+        traj["F"],
+        traj["x"],
+        traj["v"],
+        traj["xn"],
+        traj["vn"],
+        traj["mass"],
+        traj["tau"],
+        traj["seg"],
+        1,
+        traj["dt"],
+        bound=bound,
+    )
     assert S.abs().max().item() / traj["weight"] < 1e-10  # Eq. (11) residual, relative to m g
     assert _loss(traj, traj["F"], bound).item() / traj["weight"] < 1e-10
 
 
 def test_constraint_is_positive_for_perturbed_forces(traj):
     F = traj["F"].clone()
-    F[..., 0] += 0.1 * traj["weight"] / F.shape[1]  # 10 % of the weight along x, corrected bound has no slack
+    F[..., 0] += (
+        0.1 * traj["weight"] / F.shape[1]
+    )  # 10 % of the weight along x, corrected bound has no slack
     assert _loss(traj, F, "corrected").item() == pytest.approx(0.1 * traj["weight"], rel=1e-6)
     # the paper's bound has slack tau |R| |omega| + ...; a perturbation beyond it is penalised
     F2 = traj["F"].clone()
@@ -84,8 +120,19 @@ def test_constraint_gradient_reaches_forces_not_state(traj):
     F = traj["F"].clone().requires_grad_(True)
     vn = traj["vn"].clone().requires_grad_(True)
     F0 = F + torch.tensor([1.0, 0.0, 0.0], dtype=F.dtype)
-    L = constraint_loss(F0, traj["x"], traj["v"], traj["xn"], vn, traj["mass"], traj["tau"], traj["seg"], 1,
-                        traj["dt"], bound="corrected")
+    L = constraint_loss(
+        F0,
+        traj["x"],
+        traj["v"],
+        traj["xn"],
+        vn,
+        traj["mass"],
+        traj["tau"],
+        traj["seg"],
+        1,
+        traj["dt"],
+        bound="corrected",
+    )
     L.backward()
     assert F.grad.abs().sum() > 0
     assert vn.grad is None

@@ -37,9 +37,14 @@ def _cubes(k=2, n_obj=2, size=0.1, gap=0.0, world=False):
         cent.append([0, 0, -k * size])
     n = len(pos)
     static = {
-        "node_body": np.array(body), "node_static": np.array(body) == 0, "node_mass": np.where(np.array(body) == 0, 0, 1.0),
-        "node_volume": np.full(n, size**3), "node_tau": np.full(n, size * np.sqrt(3) / 2),
-        "node_centroid": np.array(cent, float), "adjacency": np.array(adj), "body_id": np.arange(1, n_obj + 1),
+        "node_body": np.array(body),
+        "node_static": np.array(body) == 0,
+        "node_mass": np.where(np.array(body) == 0, 0, 1.0),
+        "node_volume": np.full(n, size**3),
+        "node_tau": np.full(n, size * np.sqrt(3) / 2),
+        "node_centroid": np.array(cent, float),
+        "adjacency": np.array(adj),
+        "body_id": np.arange(1, n_obj + 1),
         "body_free": np.ones(n_obj, bool),
     }
     return static, torch.tensor(np.array(pos), dtype=torch.float32)
@@ -62,7 +67,9 @@ def test_no_contact_branch_for_scene_without_contact():
     model = MDGS(ModelConfig(**SMALL), contact=False)
     assert not hasattr(model, "force_contact") and not hasattr(model, "global_gather")
     static, pos = _cubes()
-    p = model(SceneGraph.from_static(static, has_contact=False), pos[None], torch.zeros_like(pos)[None])
+    p = model(
+        SceneGraph.from_static(static, has_contact=False), pos[None], torch.zeros_like(pos)[None]
+    )
     assert torch.all(p.force_contact == 0) and p.contact_edges.shape[1] == 0
     full = MDGS(ModelConfig(**SMALL), contact=True)
     assert sum(q.numel() for q in model.parameters()) < sum(q.numel() for q in full.parameters())
@@ -74,7 +81,16 @@ def test_contact_forces_only_on_contact_nodes():
     sc = SceneGraph.from_static(static, has_contact=True, contact_radius=0.11)
     p = MDGS(ModelConfig(**SMALL))(sc, pos[None], torch.zeros_like(pos)[None])
     touched = set(p.contact_edges[0].tolist())
-    assert touched == {4, 5, 6, 7, 8, 9, 10, 11}  # x-faces: cells with i = 1 of cube 0, i = 0 of cube 1
+    assert touched == {
+        4,
+        5,
+        6,
+        7,
+        8,
+        9,
+        10,
+        11,
+    }  # x-faces: cells with i = 1 of cube 0, i = 0 of cube 1
     nz = set(torch.nonzero(p.force_contact[0].abs().sum(-1)).flatten().tolist())
     assert nz <= touched and nz
 
@@ -85,19 +101,27 @@ def _cube_rigidity_error(model) -> float:
     p = model(sc, pos[None], torch.randn_like(pos)[None])
     x = p.x[0].double()
     ref = torch.tensor(static["node_centroid"])
-    return max((torch.cdist(x[s], x[s]) - torch.cdist(ref[s], ref[s])).abs().max().item()
-               for s in (slice(0, 8), slice(8, 16)))
+    return max(
+        (torch.cdist(x[s], x[s]) - torch.cdist(ref[s], ref[s])).abs().max().item()
+        for s in (slice(0, 8), slice(8, 16))
+    )
 
 
 @pytest.mark.parametrize("structure", [True, False])
 def test_structural_module_keeps_objects_rigid(structure):
     """With the per-node Euler integrator only the structural module keeps the cubes rigid."""
-    model = MDGS(ModelConfig(structure=structure, integrator="euler", dt=0.01, dx_scale=0.05, **SMALL))
+    model = MDGS(
+        ModelConfig(structure=structure, integrator="euler", dt=0.01, dx_scale=0.05, **SMALL)
+    )
     assert (_cube_rigidity_error(model) < 1e-5) == structure
 
 
 def test_rigid_integrator_keeps_objects_rigid_without_the_structural_module():
-    model = MDGS(ModelConfig(structure=False, integrator="rigid", dt=0.01, dx_scale=0.05, dv_scale=3.0, **SMALL))
+    model = MDGS(
+        ModelConfig(
+            structure=False, integrator="rigid", dt=0.01, dx_scale=0.05, dv_scale=3.0, **SMALL
+        )
+    )
     assert _cube_rigidity_error(model) < 1e-5  # float32 node positions of 0.1 m cubes
 
 
@@ -112,7 +136,9 @@ def test_rigid_model_with_zero_state_output_keeps_every_twist():
     v[:8] = torch.tensor([0.5, 0.0, 0.0])
     p = model(sc, pos[None], v[None])
     # float32 positions of 0.1 m cubes: 1e-6 m
-    assert torch.allclose(p.x[0] - pos, v * 0.01, atol=1e-6) and torch.allclose(p.v[0], v, atol=1e-6)
+    assert torch.allclose(p.x[0] - pos, v * 0.01, atol=1e-6) and torch.allclose(
+        p.v[0], v, atol=1e-6
+    )
 
 
 def test_constraint_loss_updates_only_force_networks():
@@ -122,11 +148,15 @@ def test_constraint_loss_updates_only_force_networks():
     x = pos[None] + 0.001 * torch.randn(2, *pos.shape)
     v = torch.randn_like(x)
     p = model(sc, x, v)
-    L = constraint_loss(p.force, x, v, p.x, p.v, sc.mass, sc.tau, sc.obj, sc.n_obj, 0.01, moving=~sc.static)
+    L = constraint_loss(
+        p.force, x, v, p.x, p.v, sc.mass, sc.tau, sc.obj, sc.n_obj, 0.01, moving=~sc.static
+    )
     L.backward()
     assert all(q.grad is None for q in model.state.parameters())
     assert all(q.grad is not None for q in model.force_noncontact.parameters())
-    assert any(q.grad is not None and q.grad.abs().sum() > 0 for q in model.force_contact.parameters())
+    assert any(
+        q.grad is not None and q.grad.abs().sum() > 0 for q in model.force_contact.parameters()
+    )
 
 
 @pytest.mark.parametrize("integrator", ["rigid", "twist", "euler"])
@@ -137,8 +167,17 @@ def test_model_fits_one_step(integrator):
     torch.manual_seed(0)
     static, pos = _cubes()
     sc = SceneGraph.from_static(static, has_contact=True)
-    model = MDGS(ModelConfig(structure=False, integrator=integrator, dt=0.01, dx_scale=0.01, dv_scale=0.1,
-                             force_scale=10.0, **SMALL))
+    model = MDGS(
+        ModelConfig(
+            structure=False,
+            integrator=integrator,
+            dt=0.01,
+            dx_scale=0.01,
+            dv_scale=0.1,
+            force_scale=10.0,
+            **SMALL,
+        )
+    )
     x = pos[None] + 0.01 * torch.randn(4, 1, 3)
     v = torch.randn(4, 2, 3)[:, sc.obj]
     vt = v + torch.tensor([0.0, 0.0, -0.098])
@@ -148,7 +187,19 @@ def test_model_fits_one_step(integrator):
     def loss():
         p = model(sc, x, v)
         return mse_loss(p.x, p.v, xt, vt, dx_scale=0.01, dv_scale=0.1) + constraint_loss(
-            p.force, x, v, p.x, p.v, sc.mass, sc.tau, sc.obj, sc.n_obj, 0.01, scale=160.0, bound="corrected")
+            p.force,
+            x,
+            v,
+            p.x,
+            p.v,
+            sc.mass,
+            sc.tau,
+            sc.obj,
+            sc.n_obj,
+            0.01,
+            scale=160.0,
+            bound="corrected",
+        )
 
     first = loss().item()
     for _ in range(100):

@@ -54,8 +54,12 @@ def test_projection_drops_exactly_the_non_rigid_part(seed):
     deform = e - ea[:, SEG] - torch.linalg.cross(ealpha[:, SEG], r, dim=-1)
     a, alpha = project(v + deform, x, tw, SEG, 3, mass)
     ev = torch.linalg.eigvalsh(tw.J[:, :2])
-    tol = 1e-11 * float((ev[..., -1] / ev[..., 0]).max()) + 1e-9  # as above, plus the deformation's rounding
-    assert torch.allclose(a[:, :2], vc[:, :2], atol=1e-9) and torch.allclose(alpha[:, :2], w[:, :2], atol=tol)
+    tol = (
+        1e-11 * float((ev[..., -1] / ev[..., 0]).max()) + 1e-9
+    )  # as above, plus the deformation's rounding
+    assert torch.allclose(a[:, :2], vc[:, :2], atol=1e-9) and torch.allclose(
+        alpha[:, :2], w[:, :2], atol=tol
+    )
 
 
 def test_advance_keeps_shapes_and_turns_a_flywheel_round_its_circle():
@@ -67,9 +71,13 @@ def test_advance_keeps_shapes_and_turns_a_flywheel_round_its_circle():
     v = torch.linalg.cross(w.expand(1, 6, 3), x, dim=-1)
     tw = twist(x, v, seg, 1, mass)
     xn, vn = advance(x, tw, tw.vc, tw.omega, 0.01, seg)
-    exp = torch.stack([0.03 * torch.cos(ang + 10.0), 0.03 * torch.sin(ang + 10.0), torch.zeros_like(ang)], -1)[None]
+    exp = torch.stack(
+        [0.03 * torch.cos(ang + 10.0), 0.03 * torch.sin(ang + 10.0), torch.zeros_like(ang)], -1
+    )[None]
     assert torch.allclose(xn, exp, atol=1e-12)
-    assert torch.allclose(torch.linalg.vector_norm(vn, dim=-1), torch.full((1, 6), 30.0, dtype=torch.float64))
+    assert torch.allclose(
+        torch.linalg.vector_norm(vn, dim=-1), torch.full((1, 6), 30.0, dtype=torch.float64)
+    )
 
 
 def test_constant_twist_step_matches_mujoco_on_torque_free_spin_about_a_principal_axis():
@@ -80,12 +88,16 @@ def test_constant_twist_step_matches_mujoco_on_torque_free_spin_about_a_principa
     d = mujoco.MjData(m)
     d.qvel[:] = [0.3, -0.2, 0.1, 0.0, 0.0, 40.0]
     mujoco.mj_forward(m, d)
-    body_pts = np.array([[0.1, 0.05, 0.02], [-0.1, 0.05, -0.02], [0.1, -0.05, 0.0], [-0.05, -0.05, 0.02]])
+    body_pts = np.array(
+        [[0.1, 0.05, 0.02], [-0.1, 0.05, -0.02], [0.1, -0.05, 0.0], [-0.05, -0.05, 0.02]]
+    )
     body_pts = body_pts - body_pts.mean(0)  # symmetric weights -> mass centre at the body origin
 
     def world(d):
         p = d.xpos[1] + body_pts @ d.xmat[1].reshape(3, 3).T
-        w = d.qvel[3:6] @ d.xmat[1].reshape(3, 3).T  # free joint angular velocity is in the body frame
+        w = (
+            d.qvel[3:6] @ d.xmat[1].reshape(3, 3).T
+        )  # free joint angular velocity is in the body frame
         return p, d.qvel[:3] + np.cross(w, p - d.xpos[1])
 
     x0, v0 = world(d)
@@ -103,16 +115,32 @@ def test_trapezoidal_step_is_exact_for_constant_acceleration_about_a_fixed_axis(
     """A wheel spun up from 200 to 900 rad/s in one 10 ms frame while its centre accelerates:
     angle omega0 t + alpha t^2 / 2 and centre v0 t + a t^2 / 2, exactly."""
     ang = torch.linspace(0, 2 * np.pi, 7, dtype=torch.float64)[:-1]
-    r0 = torch.stack([0.03 * torch.cos(ang), 0.03 * torch.sin(ang), torch.zeros_like(ang)], -1)[None]
+    r0 = torch.stack([0.03 * torch.cos(ang), 0.03 * torch.sin(ang), torch.zeros_like(ang)], -1)[
+        None
+    ]
     seg, mass = torch.zeros(6, dtype=torch.long), torch.ones(6, dtype=torch.float64)
     w0, w1, dt = 200.0, 900.0, 0.01
-    vc0, vc1 = torch.tensor([0.1, 0.0, 0.0], dtype=torch.float64), torch.tensor([0.3, 0.0, -0.2], dtype=torch.float64)
+    vc0, vc1 = (
+        torch.tensor([0.1, 0.0, 0.0], dtype=torch.float64),
+        torch.tensor([0.3, 0.0, -0.2], dtype=torch.float64),
+    )
     x = r0 + 1.0
-    v = vc0 + torch.linalg.cross(torch.tensor([0.0, 0.0, w0], dtype=torch.float64).expand(1, 6, 3), r0, dim=-1)
+    v = vc0 + torch.linalg.cross(
+        torch.tensor([0.0, 0.0, w0], dtype=torch.float64).expand(1, 6, 3), r0, dim=-1
+    )
     tw = twist(x, v, seg, 1, mass)
-    xn, _ = advance(x, tw, vc1.view(1, 1, 3), torch.tensor([[[0.0, 0.0, w1]]], dtype=torch.float64), dt, seg,
-                    trapezoidal=True)
+    xn, _ = advance(
+        x,
+        tw,
+        vc1.view(1, 1, 3),
+        torch.tensor([[[0.0, 0.0, w1]]], dtype=torch.float64),
+        dt,
+        seg,
+        trapezoidal=True,
+    )
     th = w0 * dt + (w1 - w0) / 2 * dt
-    exp = torch.stack([0.03 * torch.cos(ang + th), 0.03 * torch.sin(ang + th), torch.zeros_like(ang)], -1)[None]
+    exp = torch.stack(
+        [0.03 * torch.cos(ang + th), 0.03 * torch.sin(ang + th), torch.zeros_like(ang)], -1
+    )[None]
     exp = exp + 1.0 + (vc0 + vc1) / 2 * dt
     assert torch.allclose(xn, exp, atol=1e-12)

@@ -15,11 +15,13 @@ def _rotation(q):
     q = np.asarray(q, float)
     q = q / np.linalg.norm(q)
     w, x, y, z = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 quats = st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(lambda q: np.linalg.norm(q) > 0.1)
@@ -49,7 +51,9 @@ def test_kabsch_is_invariant_to_node_order(q, seed):
     pred = ref @ _rotation(q).T + rng.normal(scale=0.05, size=(n, 3))  # deformed
     perm = rng.permutation(n)
     a = align_to_reference(torch.tensor(pred)[None], torch.tensor(ref), seg, 2)[0].numpy()
-    b = align_to_reference(torch.tensor(pred[perm])[None], torch.tensor(ref[perm]), seg[perm], 2)[0].numpy()
+    b = align_to_reference(torch.tensor(pred[perm])[None], torch.tensor(ref[perm]), seg[perm], 2)[
+        0
+    ].numpy()
     np.testing.assert_allclose(b, a[perm], atol=1e-10)
 
 
@@ -67,12 +71,24 @@ def test_alignment_restores_shape_and_batches_segments():
     ref = rng.normal(size=(6, 3))
     seg = torch.tensor([0, 0, 0, 1, 1, 1])
     B = 5
-    pred = np.stack([np.concatenate([ref[:3] @ _rotation(rng.normal(size=4)).T + rng.normal(size=3),
-                                     ref[3:] @ _rotation(rng.normal(size=4)).T + rng.normal(size=3)]) for _ in range(B)])
+    pred = np.stack(
+        [
+            np.concatenate(
+                [
+                    ref[:3] @ _rotation(rng.normal(size=4)).T + rng.normal(size=3),
+                    ref[3:] @ _rotation(rng.normal(size=4)).T + rng.normal(size=3),
+                ]
+            )
+            for _ in range(B)
+        ]
+    )
     noisy = pred + rng.normal(scale=1e-2, size=pred.shape)
     out = align_to_reference(torch.tensor(noisy), torch.tensor(ref), seg, 2).numpy()
     for b in range(B):
-        for s in (slice(0, 3), slice(3, 6)):  # pairwise distances of each object are restored exactly
+        for s in (
+            slice(0, 3),
+            slice(3, 6),
+        ):  # pairwise distances of each object are restored exactly
             d_out = np.linalg.norm(out[b, s, None] - out[b, None, s], axis=-1)
             d_ref = np.linalg.norm(ref[s, None] - ref[None, s], axis=-1)
             np.testing.assert_allclose(d_out, d_ref, atol=1e-12)

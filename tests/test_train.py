@@ -30,8 +30,17 @@ def data(tmp_path_factory):
 
 def _cfg(data, out, **kw) -> TrainConfig:
     # tiny preset: 2 training trajectories x 109 pairs -> 13 steps of 16 graphs per epoch
-    base = dict(data=str(data), out=str(out), epochs=8, batch_size=16, max_steps=0, valid_max_pairs=64,
-                log_every=1, device="cpu", model=ModelConfig())
+    base = dict(
+        data=str(data),
+        out=str(out),
+        epochs=8,
+        batch_size=16,
+        max_steps=0,
+        valid_max_pairs=64,
+        log_every=1,
+        device="cpu",
+        model=ModelConfig(),
+    )
     return TrainConfig(**{**base, **kw})
 
 
@@ -53,7 +62,9 @@ def test_controls_map_to_driven_body_and_parent(data):
         assert (sign[k, nb == 1] == -1).all()  # reaction on the cube
         assert (sign[k, (nb != wheel) & (nb != 1)] == 0).all()
     ctrl = _ctrl(data)
-    np.testing.assert_allclose(d.control[..., nb == 2, 0], np.repeat(ctrl[..., 0:1], (nb == 2).sum(), -1), rtol=1e-6)
+    np.testing.assert_allclose(
+        d.control[..., nb == 2, 0], np.repeat(ctrl[..., 0:1], (nb == 2).sum(), -1), rtol=1e-6
+    )
 
 
 def open_mjcf(data) -> str:
@@ -108,11 +119,16 @@ def test_resume_continues_like_an_uninterrupted_run(data, run, tmp_path):
 
 def test_evaluate_writes_report_and_plots(data, run, tmp_path):
     path = tmp_path / "report.json"
-    res = runner.invoke(app, ["evaluate", str(run), str(run), "--data", str(data), "--json", str(path)])
+    res = runner.invoke(
+        app, ["evaluate", str(run), str(run), "--data", str(data), "--json", str(path)]
+    )
     assert res.exit_code == 0, res.output
     rep = json.loads(path.read_text())
     r = rep["runs"][0]
-    for t in (40, 110):  # a tiny overfit model may diverge: then the value is None and the step is reported
+    for t in (
+        40,
+        110,
+    ):  # a tiny overfit model may diverge: then the value is None and the step is reported
         v = rep[f"mse_t{t}"]
         if r[f"mse_t{t}_trajectories"]:
             assert np.isfinite(v) and v >= 0
@@ -120,7 +136,9 @@ def test_evaluate_writes_report_and_plots(data, run, tmp_path):
             assert v is None and r["diverged"] and rep["status"] == "diverged"
     assert len(r["rollout_mse_curve"]) == r["frames"] == 110
     assert r["mse_t110_frame"] == 109 and r["mse_t40_frame"] == 39
-    assert rep["aggregate"]["runs"] == 2 and rep["aggregate"]["one_step_mse_scaled"]["std"] == pytest.approx(0, abs=1e-9)
+    assert rep["aggregate"]["runs"] == 2 and rep["aggregate"]["one_step_mse_scaled"][
+        "std"
+    ] == pytest.approx(0, abs=1e-9)
     for p in rep["plots"].values():
         assert (tmp_path / p.split("/")[-1]).stat().st_size > 1000
     ref = rep["reference"]  # constant twist: finite, and printed by the CLI
@@ -141,13 +159,17 @@ def test_constant_twist_reference_keeps_each_body_twist_and_shape(data):
     a, b = twist(x, v, sc.obj, sc.n_obj, sc.mass), twist(xn, vn, sc.obj, sc.n_obj, sc.mass)
     mv = ~sc.static
     # twist kept (float32 states: 1e-4 relative of a flywheel at ~1000 rad/s), static nodes fixed
-    assert torch.allclose(b.omega, a.omega, rtol=1e-4, atol=1e-3) and torch.allclose(b.vc, a.vc, atol=1e-5)
+    assert torch.allclose(b.omega, a.omega, rtol=1e-4, atol=1e-3) and torch.allclose(
+        b.vc, a.vc, atol=1e-5
+    )
     assert torch.equal(xn[:, ~mv], x[:, ~mv])
     # and the shape of every body is kept to float32 resolution
     for s in range(sc.n_obj):
         sel = (sc.obj == s) & mv
         if sel.sum() > 1:
-            dd = torch.cdist(xn[:, sel].double(), xn[:, sel].double()) - torch.cdist(x[:, sel].double(), x[:, sel].double())
+            dd = torch.cdist(xn[:, sel].double(), xn[:, sel].double()) - torch.cdist(
+                x[:, sel].double(), x[:, sel].double()
+            )
             assert dd.abs().max() < 1e-5
 
 
@@ -163,8 +185,22 @@ def test_divergence_is_detected_not_averaged(data, run, tmp_path, monkeypatch):
 
 def test_mismatched_checkpoint_exits_2(data, run, tmp_path):
     # a run with another model configuration in the same folder
-    res = runner.invoke(app, ["train", "--data", str(data), "--out", str(run), "--model", "mdgs-nc",
-                              "--epochs", "3", "--max-steps", "1"])
+    res = runner.invoke(
+        app,
+        [
+            "train",
+            "--data",
+            str(data),
+            "--out",
+            str(run),
+            "--model",
+            "mdgs-nc",
+            "--epochs",
+            "3",
+            "--max-steps",
+            "1",
+        ],
+    )
     assert res.exit_code == 2, res.output
     assert "other settings" in res.output and "Traceback" not in res.output
     # a run evaluated on another scene
@@ -191,7 +227,11 @@ def test_bad_data_exits_2(data, tmp_path, bad):
             x = np.asarray(h5py.File(data / "train.h5", "r")["frames/node_pos"])
             x[0, 5, 0, 0] = np.nan
             f["frames"].create_dataset("node_pos", data=x)
-    res = runner.invoke(app, ["train", "--data", str(d), "--out", str(tmp_path / "r"), "--epochs", "1"])
+    res = runner.invoke(
+        app, ["train", "--data", str(d), "--out", str(tmp_path / "r"), "--epochs", "1"]
+    )
     assert res.exit_code == 2, res.output
     assert "Traceback" not in res.output and str(d) in res.output
-    assert {"missing": "does not exist", "corrupt": "not a readable HDF5", "nan": "NaN"}[bad] in res.output
+    assert {"missing": "does not exist", "corrupt": "not a readable HDF5", "nan": "NaN"}[
+        bad
+    ] in res.output

@@ -220,6 +220,10 @@ def generate(
                 if progress:
                     progress(done, total)
         else:
+            # compile (or load from numba's cache) the recorder's loops here, once: forked
+            # workers inherit them instead of each compiling its own on a cold cache
+            split0, start0 = todo[0][0], todo[0][1]
+            simulate(loaded, split0, [start0], cfg.seed, min(2, int(base_attrs["n_frames"])))
             ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
             with cf.ProcessPoolExecutor(
                 max_workers=cfg.workers, mp_context=ctx, initializer=_worker_init, initargs=(cfg,)
