@@ -226,7 +226,7 @@ def simulate(
         return v.reshape((X,) + v.shape[2:])
 
     res = reduce.finish({key: flat(v) for key, v in loads.items()})
-    res = reduce.kinematics(*(flat(kin[key]) for key in KINEMATICS), out=res)
+    res.update(reduce.kinematics(*(flat(kin[key]) for key in KINEMATICS)))
     for key, v in res.items():
         out[key] = v.reshape((R, n_frames) + v.shape[1:])
     out["time"] = frames[:, :, sl["time"]][..., 0]

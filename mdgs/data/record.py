@@ -496,27 +496,19 @@ class FrameReducer:
         xipos: np.ndarray,
         cvel: np.ndarray,
         sub: np.ndarray,
-        out: dict[str, np.ndarray] | None = None,
     ) -> dict[str, np.ndarray]:
         """Frame-start fields ``[X, nbody, ...]`` -> body and node kinematics ``[X, ...]``.
 
         Velocities come from ``cvel`` at the tree's reference point ``sub`` (subtree_com).
-        Arrays in ``out`` (``[X, ...]``, e.g. views of the outputs) are filled in place.
         """
-        out = {} if out is None else out
         X = xpos.shape[0]
         v = np.empty((X, self.nb, 3))
-
-        def target(key):
-            a = out.get(key)
-            return a if a is not None and a.flags.c_contiguous else np.empty((X, self.N, 3))
-
-        pos, vel = target("node_pos"), target("node_vel")
+        pos, vel = np.empty((X, self.N, 3)), np.empty((X, self.N, 3))
         _kernels.node_kinematics(
             *(np.ascontiguousarray(a) for a in (xpos, xquat, xipos, cvel, sub)),
             self.root, self.node_body, self.node_c, v, pos, vel,
         )  # fmt: skip
-        res = {
+        return {
             "body_pos": xpos[:, 1:],
             "body_quat": xquat[:, 1:],
             "body_com": xipos[:, 1:],
@@ -525,20 +517,10 @@ class FrameReducer:
             "node_pos": pos,
             "node_vel": vel,
         }
-        for key, a in res.items():
-            if key in out:
-                if out[key] is not a:
-                    out[key][...] = a
-            else:
-                out[key] = a
-        return out
 
     # -- loads of whole frames ---------------------------------------------------------
-    def finish(
-        self, lo: dict[str, np.ndarray], out: dict[str, np.ndarray] | None = None
-    ) -> dict[str, np.ndarray]:
-        """:meth:`loads` of ``X`` frames -> the recorded load arrays ``[X, ...]`` (into ``out``)."""
-        out = {} if out is None else out
+    def finish(self, lo: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """:meth:`loads` of ``X`` frames -> the recorded load arrays ``[X, ...]``."""
         X, B = lo["joint"].shape[:2]
         Fa = np.zeros((X, B + 1, 3))  # row 0: the world
         Ta = np.zeros((X, B + 1, 3))
@@ -553,15 +535,14 @@ class FrameReducer:
             else:
                 Ta[:, b] += gm
                 Ta[:, pb] -= gm
-        node_jf = out["node_joint_force"] if "node_joint_force" in out else np.empty((X, self.N, 3))
-        node_jf[...] = 0
+        node_jf = np.zeros((X, self.N, 3))
         fint = lo["fint"]
         for src, dst in zip(self.jf_src, self.jf_dst, strict=True):
             node_jf[:, dst] += fint[:, src - 1]
         for src, dst in zip(self.jr_src, self.jr_dst, strict=True):
             node_jf[:, dst] -= fint[:, src - 1]
         joint = lo["joint"]
-        res = {
+        return {
             "body_acc": lo["acc"],
             "body_contact_force": lo["contact"][..., 3:],
             "body_contact_torque": lo["contact"][..., :3],
@@ -573,13 +554,6 @@ class FrameReducer:
             "contact_count": lo["contact_count"],
             "contact_overflow": lo["contact_overflow"],
         }
-        for key, v in res.items():
-            if key in out:
-                if out[key] is not v:
-                    out[key][...] = v
-            else:
-                out[key] = v
-        return out
 
     def frames(self, rec: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Records ``[X, k, ...]`` (X frames of k steps each, full sensordata) -> frames ``[X, ...]``."""
