@@ -27,7 +27,7 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from mdgs.data.engine import load_scene, simulate, static_arrays
 from mdgs.graphs import SceneGraph
-from mdgs.model import MDGS, ModelConfig
+from mdgs.models.mdgs import MDGS, ModelConfig
 from mdgs.scenes import SCENES
 
 
@@ -66,8 +66,8 @@ def main() -> None:
     N = scene.num_nodes
     frame_dt = float(loaded.inst.model.opt.timestep) * int(spec.substeps)
     model = MDGS(
-        ModelConfig(structure=not args.no_structure, integrator=args.integrator, dt=frame_dt),
-        contact=spec.has_contact,
+        ModelConfig(structure=not args.no_structure, integrator=args.integrator, dt=frame_dt,
+                    contact=spec.has_contact),
     ).eval()
 
     # a real state: frame 1 of a test trajectory of the scene

@@ -128,7 +128,7 @@ def _verdict_table(rows: list[dict]) -> str:
 
 
 def _cex_line(r: dict) -> str:
-    from validation.cli import counterexample_line
+    from validation.report import counterexample_line
 
     return counterexample_line(r["counterexample"], width=400)
 

@@ -1,4 +1,4 @@
-"""Tests of ``mdgs validate`` (validation/cli.py) and its JSON report (validation/report.py).
+"""Tests of ``mdgs validate`` (mdgs/cli/validate.py) and its JSON report (validation/report.py).
 
 ``kane.claims`` and ``kane.counterexamples`` are replaced by small fakes returning fixed
 :class:`kane.results.CheckResult` records, so these tests decide the CLI's behaviour (table,
@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import pytest
 
 from kane.results import CheckResult
-from validation import cli, report
+from mdgs.cli import validate as cli
+from validation import report
 
 
 @dataclass(frozen=True)
@@ -271,9 +272,9 @@ def test_replay_missing_file_exit_2(monkeypatch, capsys, tmp_path):
     assert code == 2 and "no such file" in err
 
 
-def test_python_m_validation_is_mdgs_validate(monkeypatch, capsys):
+def test_python_m_mdgs_cli_validate_is_mdgs_validate(monkeypatch, capsys):
     _install_fake_kane(monkeypatch, [_holds()])
-    monkeypatch.setattr(sys, "argv", ["python -m validation", "--quick"])
+    monkeypatch.setattr(sys, "argv", ["python -m mdgs.cli.validate", "--quick"])
     with pytest.raises(SystemExit) as exc:
         cli.validate_main()
     assert exc.value.code == 0

@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
+from mdgs.cli import app
 from mdgs.data.generate import GenerateConfig, _part_path, generate, plan
 from mdgs.data.presets import PRESETS
 from mdgs.scenes import SCENES
-from validation.cli import app
 from validation.data_checks import check_dataset
 
 runner = CliRunner()

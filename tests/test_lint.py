@@ -23,7 +23,7 @@ def test_cli_start_does_not_import_torch():
     """`mdgs validate` and `mdgs generate` must not pay torch's import time."""
     import sys
 
-    code = "import sys, validation.cli; print('torch' in sys.modules)"
+    code = "import sys, mdgs.cli; print('torch' in sys.modules)"
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT
     )

@@ -6,7 +6,7 @@ import torch
 
 from mdgs.graphs import SceneGraph
 from mdgs.losses import constraint_loss, mse_loss
-from mdgs.model import MDGS, ModelConfig
+from mdgs.models.mdgs import MDGS, ModelConfig
 
 SMALL = dict(hidden=32, global_dim=16)
 
@@ -64,14 +64,14 @@ def test_forward_shapes_and_static_nodes():
 
 
 def test_no_contact_branch_for_scene_without_contact():
-    model = MDGS(ModelConfig(**SMALL), contact=False)
+    model = MDGS(ModelConfig(**SMALL, contact=False))
     assert not hasattr(model, "force_contact") and not hasattr(model, "global_gather")
     static, pos = _cubes()
     p = model(
         SceneGraph.from_static(static, has_contact=False), pos[None], torch.zeros_like(pos)[None]
     )
     assert torch.all(p.force_contact == 0) and p.contact_edges.shape[1] == 0
-    full = MDGS(ModelConfig(**SMALL), contact=True)
+    full = MDGS(ModelConfig(**SMALL, contact=True))
     assert sum(q.numel() for q in model.parameters()) < sum(q.numel() for q in full.parameters())
 
 

@@ -1,4 +1,4 @@
-"""End-to-end training and evaluation on a tiny cubli-triple dataset (mdgs.train, mdgs.evaluate).
+"""End-to-end training and evaluation on a tiny cubli-triple dataset (mdgs.train, mdgs.evaluate, the CLI).
 
 One module-scoped dataset and run keep the whole file well under a minute on two CPU cores.
 """
@@ -12,11 +12,12 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from mdgs.cli import app
 from mdgs.data.generate import GenerateConfig, generate
+from mdgs.data.split import control_map, load_split
 from mdgs.evaluate import DIVERGENCE_FACTOR, evaluate
-from mdgs.model import ModelConfig
-from mdgs.train import TrainConfig, control_map, load_split, noise_sigmas, train
-from validation.cli import app
+from mdgs.models.mdgs import ModelConfig, noise_sigmas
+from mdgs.train import TrainConfig, train
 
 runner = CliRunner()
 
@@ -102,7 +103,7 @@ def test_training_loss_falls_and_outputs(run):
     hist = json.loads((run / "metrics.json").read_text())
     assert [h["epoch"] for h in hist] == list(range(8))
     cfg = json.loads((run / "config.json").read_text())
-    assert cfg["model"]["control_dim"] == 3 and cfg["noise_sigma_x_m"] == 4e-4
+    assert cfg["model"]["control_dim"] == 3 and cfg["model"]["noise_sigma_x"] == 4e-4
     assert cfg["data_identity"]["scene"] == "cubli-triple"
 
 
@@ -148,14 +149,16 @@ def test_evaluate_writes_report_and_plots(data, run, tmp_path):
 
 def test_constant_twist_reference_keeps_each_body_twist_and_shape(data):
     """One reference step from a recorded frame: same twist per body, same shapes, static nodes fixed."""
-    from mdgs.evaluate import constant_twist_step
     from mdgs.graphs import SceneGraph
+    from mdgs.models import MODELS, State
     from mdgs.rigid import twist
 
     d = load_split(data / "test.h5")
     sc = SceneGraph.from_static(d.static, has_contact=d.has_contact)
     x, v = torch.from_numpy(d.x[:, 5]), torch.from_numpy(d.v[:, 5])
-    xn, vn = constant_twist_step(sc, d.frame_dt)(x, v)
+    ref = MODELS["constant-twist"].from_data(d)
+    nxt = ref.step(State(x, v), torch.from_numpy(d.ctrl[:, 5]))
+    xn, vn = nxt.x, nxt.v
     a, b = twist(x, v, sc.obj, sc.n_obj, sc.mass), twist(xn, vn, sc.obj, sc.n_obj, sc.mass)
     mv = ~sc.static
     # twist kept (float32 states: 1e-4 relative of a flywheel at ~1000 rad/s), static nodes fixed
@@ -174,7 +177,7 @@ def test_constant_twist_reference_keeps_each_body_twist_and_shape(data):
 
 
 def test_divergence_is_detected_not_averaged(data, run, tmp_path, monkeypatch):
-    import mdgs.evaluate as ev
+    import mdgs.evaluate.rollout as ev
 
     monkeypatch.setattr(ev, "DIVERGENCE_FACTOR", 0.0)  # every step counts as diverged
     rep = evaluate([run], data, json_path=tmp_path / "r.json", device="cpu")

@@ -195,3 +195,34 @@ def write_json(report: Mapping, path: str | os.PathLike) -> None:
         except FileNotFoundError:
             pass
         raise
+
+
+def format_number(x: float | None) -> str:
+    """A residual, margin or tolerance in 3 significant digits; ``-`` for none."""
+    if x is None:
+        return "-"
+    return f"{x:.3g}"
+
+
+def _fmt_value(v: Any, depth: int = 0) -> str:
+    """Compact one-line rendering of a counterexample value (numbers to 4 significant digits)."""
+    if isinstance(v, bool) or v is None:
+        return str(v)
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k}={_fmt_value(x, depth + 1)}" for k, x in v.items()) + "}"
+    if isinstance(v, (list, tuple)):
+        items = [_fmt_value(x, depth + 1) for x in v[:6]]
+        if len(v) > 6:
+            items.append(f"... ({len(v)} items)")
+        return "[" + ", ".join(items) + "]"
+    return str(v)
+
+
+def counterexample_line(cex: dict | None, width: int = 200) -> str:
+    """A counterexample on one line, cut to ``width`` characters."""
+    if not cex:
+        return ""
+    line = ", ".join(f"{k}={_fmt_value(v)}" for k, v in cex.items())
+    return line if len(line) <= width else line[: width - 3] + "..."

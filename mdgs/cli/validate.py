@@ -1,127 +1,35 @@
-"""The ``mdgs`` command line: ``mdgs validate`` here, simulator sub-commands from :mod:`mdgs.cli`.
+"""``mdgs validate``: every check of :mod:`kane` (or of a dataset, or one counterexample replayed), one verdict each.
 
 ``mdgs validate`` runs every check of :mod:`kane` on every case it applies to, prints one
-table row per check and the summary line ``14 checks: 12 hold, 2 refuted, 0 errors``.
-Exit codes: 0 every check holds, 1 some claim is refuted, 2 usage error or a check that
-could not decide (``error``). User errors end in one sentence on stderr, never a traceback.
+table row per check and the summary line (``N checks: H hold, R refuted, E errors``).
+Exit codes: 0 every check holds, 1 some claim is refuted (a finding), 2 usage error or a
+check that could not decide (``error``). User errors end in one sentence on stderr, never a
+traceback. ``python -m mdgs.cli.validate`` runs this command alone.
 """
 
 from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
-import click
 import typer
 from rich.console import Console
 from rich.table import Table
 from rich.text import Text
 
-import mdgs.cli
+from mdgs.cli import EXIT_ERROR, EXIT_HOLDS, app, main
 from validation import report as _report
-
-EXIT_HOLDS, EXIT_REFUTED, EXIT_ERROR = 0, 1, 2
-
-# Parse errors: typer >= 0.20 vendors click (typer._click); older typer raises click's own.
-_CLICK_ERRORS = (click.ClickException, typer.TyperException) if hasattr(typer, "TyperException") else (click.ClickException,)
+from validation.report import counterexample_line, format_number
 
 
 class UsageError(Exception):
     """A user-caused problem (bad flag value, bad file); its message is one sentence."""
 
 
-class _App(typer.Typer):
-    """Typer app whose parse errors end in one sentence on stderr and exit code 2."""
-
-    def __call__(self, args: Sequence[str] | None = None, prog_name: str | None = None) -> None:
-        sys.exit(main(args, prog_name=prog_name or "mdgs", app_=self))
-
-
-app = _App(
-    name="mdgs",
-    help="MDGS: Kane-constrained GNN rigid-body simulator and the checks of its theory.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-)
-
-
-@app.callback()
-def _root() -> None:
-    """MDGS: Kane-constrained GNN rigid-body simulator and the checks of its theory."""
-
-
-def main(
-    args: Sequence[str] | None = None,
-    prog_name: str = "mdgs",
-    app_: typer.Typer | None = None,
-    subcommand: str | None = None,
-) -> int:
-    """Run the CLI on ``args`` (default ``sys.argv[1:]``) and return its exit code.
-
-    Click's usage errors (unknown flag, bad value) are printed as one sentence on stderr with
-    exit code 2, instead of click's usage box. ``subcommand`` runs that sub-command alone
-    (``python -m validation`` is ``mdgs validate``).
-    """
-    command = typer.main.get_command(app_ or app)
-    if subcommand is not None:
-        command = command.commands[subcommand]
-    try:
-        rv = command.main(args=list(args) if args is not None else None, prog_name=prog_name, standalone_mode=False)
-    except _CLICK_ERRORS as e:
-        ctx = getattr(e, "ctx", None)
-        cmd = ctx.command_path if ctx is not None else prog_name
-        if type(e).__name__ == "NoArgsIsHelpError" and ctx is not None:  # `mdgs` alone: the help
-            print(ctx.get_help(), file=sys.stderr)
-            return EXIT_ERROR
-        message = e.format_message().rstrip(".") if hasattr(e, "format_message") else str(e)
-        _err(f"{cmd}: {message}; see `{cmd} --help`.")
-        return EXIT_ERROR
-    except (click.Abort, typer.Abort):
-        _err(f"{prog_name}: aborted.")
-        return 130
-    return rv if isinstance(rv, int) else 0
-
-
 def _err(sentence: str) -> None:
     """One sentence on stderr."""
     print(sentence, file=sys.stderr)
-
-
-# --------------------------------------------------------------------------- formatting
-
-
-def _fmt_num(x: float | None) -> str:
-    if x is None:
-        return "-"
-    return f"{x:.3g}"
-
-
-def _fmt_value(v: Any, depth: int = 0) -> str:
-    """Compact one-line rendering of a counterexample value (numbers to 4 significant digits)."""
-    if isinstance(v, bool) or v is None:
-        return str(v)
-    if isinstance(v, float):
-        return f"{v:.4g}"
-    if isinstance(v, dict):
-        return "{" + ", ".join(f"{k}={_fmt_value(x, depth + 1)}" for k, x in v.items()) + "}"
-    if isinstance(v, (list, tuple)):
-        items = [_fmt_value(x, depth + 1) for x in v[:6]]
-        if len(v) > 6:
-            items.append(f"... ({len(v)} items)")
-        return "[" + ", ".join(items) + "]"
-    return str(v)
-
-
-def counterexample_line(cex: dict | None, width: int = 200) -> str:
-    """A counterexample on one line, cut to ``width`` characters."""
-    if not cex:
-        return ""
-    line = ", ".join(f"{k}={_fmt_value(v)}" for k, v in cex.items())
-    return line if len(line) <= width else line[: width - 3] + "..."
 
 
 _VERDICT_STYLE = {"holds": "green", "refuted": "bold red", "error": "yellow"}
@@ -144,8 +52,8 @@ def render_table(rows: list[dict], console: Console) -> None:
             r["claim"],
             r["case"],
             r["route"],
-            _fmt_num(r["residual"]),
-            _fmt_num(r["tolerance"]),
+            format_number(r["residual"]),
+            format_number(r["tolerance"]),
             Text(r["verdict"], style=_VERDICT_STYLE.get(r["verdict"], "")),
         )
     console.print(table)
@@ -311,9 +219,10 @@ def _validate(quick, check, case, json_path, seed, replay, data) -> int:
     return _report.exit_code(rep["summary"])
 
 
-mdgs.cli.register(app)
-
-
 def validate_main() -> None:
-    """Entry point of ``python -m validation``."""
-    sys.exit(main(sys.argv[1:], prog_name="python -m validation", subcommand="validate"))
+    """Entry point of ``python -m mdgs.cli.validate`` (``mdgs validate`` alone)."""
+    sys.exit(main(sys.argv[1:], prog_name="python -m mdgs.cli.validate", subcommand="validate"))
+
+
+if __name__ == "__main__":
+    validate_main()

@@ -1,0 +1,92 @@
+"""``mdgs evaluate``: roll out whole test trajectories with trained runs and non-learned references."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from mdgs.cli import app, fail
+
+
+def _parse_reference(text: str) -> tuple[str, dict]:
+    """``mujoco:20`` -> ("mujoco", {"dt_factor": 20}); ``constant-twist`` -> ("constant-twist", {})."""
+    name, _, arg = text.partition(":")
+    if name == "mujoco":
+        try:
+            k = int(arg or "1")
+        except ValueError:
+            fail(f"--reference {text}: write mujoco:K with K an integer timestep factor (e.g. mujoco:20)")
+        if k < 1:
+            fail(f"--reference {text}: the timestep factor must be at least 1")
+        return name, {"dt_factor": k}
+    if arg:
+        fail(f"--reference {text}: {name} takes no setting")
+    return name, {}
+
+
+def _list_models() -> None:
+    from mdgs.models import MODELS
+
+    w = max(len(n) for n in MODELS)
+    for name, cls in MODELS.items():
+        typer.echo(f"{name:<{w}}  {'learned  ' if cls.learned else 'reference'}  {cls.summary}")
+
+
+@app.command("evaluate")
+def evaluate_cmd(
+    runs: list[Path] = typer.Argument(None, help="Run folder(s) from `mdgs train`; several (seeds) give mean +- std."),
+    data: Path = typer.Option(None, "--data", help="Dataset folder (`mdgs generate` output)."),
+    split: str = typer.Option("test", "--split", help="test, valid or train."),
+    json_path: Path = typer.Option(None, "--json", help="Report path (default RUN/evaluation-SPLIT.json)."),
+    traj: int = typer.Option(0, "--traj", help="Test trajectory drawn in the trajectory plot."),
+    reference: list[str] = typer.Option(None, "--reference", metavar="NAME[:K]",
+                                        help="Also roll out a non-learned reference, e.g. mujoco:20 (MuJoCo at 20x "
+                                             "the data's timestep); repeatable. constant-twist is always included."),
+    device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),
+    list_models: bool = typer.Option(False, "--list-models", help="List the models of the registry and exit."),
+) -> None:
+    """Roll out whole test trajectories; rollout MSE at t=40 and t=110 (m^2), curves and plots."""
+    if list_models:
+        _list_models()
+        return
+    from mdgs.data.schema import DatasetError
+    from mdgs.evaluate import evaluate
+    from mdgs.models import ModelError
+    from mdgs.runs import RunError
+
+    if not runs:
+        fail("name at least one run folder (from `mdgs train`)")
+    if data is None:
+        fail("--data DIR is required (the dataset folder of `mdgs generate`)")
+    if split not in ("train", "valid", "test"):
+        fail(f"--split {split} is not one of train, valid, test")
+    refs = [_parse_reference(r) for r in reference or []]
+    try:
+        rep = evaluate([str(r) for r in runs], data, split, json_path, device, traj, refs)
+    except (DatasetError, RunError, ModelError) as e:
+        fail(str(e))
+    agg = rep["aggregate"]
+
+    def fmt(key: str) -> str:
+        m = agg[key]
+        if m["mean"] is None:
+            return "n/a (diverged)"
+        return f"{m['mean']:.4g}" + (f" +- {m['std']:.2g}" if agg["runs"] > 1 else "")
+
+    r0 = rep["runs"][0]
+
+    def n_used(t: int) -> str:
+        return f"{sum(r[f'mse_t{t}_trajectories'] for r in rep['runs'])}/{sum(r['trajectories'] for r in rep['runs'])}"
+
+    typer.echo(f"{r0['scene']} {split}: position MSE t=40 {fmt('mse_t40')} m^2 ({n_used(40)} trajectories), "
+               f"t=110 {fmt('mse_t110')} m^2 ({n_used(110)}); {agg['runs']} run(s); report {rep['json']}")
+    for ref in rep["references"]:
+        def f(x):
+            return "n/a (diverged)" if x is None else f"{x:.4g}"
+        typer.echo(f"reference {ref['label']}: t=40 {f(ref['mse_t40'])} m^2, "
+                   f"t=110 {f(ref['mse_t110'])} m^2")
+    for r in rep["runs"]:
+        for dv in r["diverged"]:
+            typer.echo(f"warning: {r['run']}: test trajectory {dv['trajectory']} diverged at step {dv['step']} "
+                       f"(t = {dv['time_s']:.3g} s) and is left out of the means from there on", err=True)

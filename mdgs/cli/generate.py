@@ -1,0 +1,150 @@
+"""``mdgs generate``: trajectories of a built-in scene or a user MJCF as HDF5 datasets (train/valid/test)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from mdgs.cli import app, fail, progress_bar
+
+_SCENE_HELP = "Scene name (see --list), or 'all' for every scene into OUT/<scene>/."
+
+
+def _parse_shard(text: str) -> tuple[int, int]:
+    try:
+        i, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        fail(f"--shard '{text}' is not of the form I/N (for example 0/4)")
+    if not (n >= 1 and 0 <= i < n):
+        fail(f"--shard {text} is out of range; use I/N with 0 <= I < N")
+    return i, n
+
+
+def _list_scenes() -> None:
+    from mdgs.scenes import SCENES
+
+    w = max(len(n) for n in SCENES)
+    for name, s in SCENES.items():
+        tag = f" [test set, variant of {s.variant_of}]" if s.variant_of else ""
+        typer.echo(f"{name:<{w}}  {s.summary}{tag}")
+
+
+def _human(nbytes: float) -> str:
+    for unit in ("B", "KB", "MB", "GB"):
+        if nbytes < 1024 or unit == "GB":
+            return f"{nbytes:.1f} {unit}" if unit != "B" else f"{int(nbytes)} B"
+        nbytes /= 1024
+    return f"{nbytes:.1f} GB"
+
+
+@app.command()
+def generate(
+    scene: str = typer.Argument(None, help=_SCENE_HELP, show_default=False),
+    out: Path = typer.Option(None, "--out", help="Output directory (one HDF5 file per split)."),
+    preset: str = typer.Option(
+        "tiny", "--preset", help="tiny (CI), small (40/10/10) or paper (2000/100/100)."
+    ),
+    n_traj: int = typer.Option(
+        None, "--n-traj", help="Total trajectories instead of the preset's (paper proportions)."
+    ),
+    workers: int = typer.Option(1, "--workers", help="Worker processes."),
+    shard: str = typer.Option(
+        "0/1", "--shard", help="Run only shard I of N (I/N); shards merge into one dataset."
+    ),
+    seed: int = typer.Option(
+        0, "--seed", help="Base seed; output is bit-identical for a given seed."
+    ),
+    mjcf: Path = typer.Option(
+        None, "--mjcf", help="Generate from your own MJCF file instead of a built-in scene."
+    ),
+    substeps: int = typer.Option(
+        10, "--substeps", help="Integrator steps per frame for --mjcf scenes."
+    ),
+    refine: int = typer.Option(
+        1, "--refine", help="Multiply the default partition resolution."
+    ),
+    list_scenes: bool = typer.Option(False, "--list", help="List the scenes and exit."),
+) -> None:
+    """Generate trajectories of a scene as HDF5 datasets (train/valid/test)."""
+    if list_scenes:
+        _list_scenes()
+        return
+    from mdgs.data.generate import GenerateConfig
+    from mdgs.data.generate import generate as run
+    from mdgs.data.presets import PRESETS
+    from mdgs.data.record import SceneError
+    from mdgs.data.schema import DatasetError
+    from mdgs.partition import PartitionError, PartitionParams
+    from mdgs.scenes import SCENES
+
+    if out is None:
+        fail("--out DIR is required (the directory that receives train.h5, valid.h5, test.h5)")
+    if preset not in PRESETS:
+        fail(f"unknown preset '{preset}'; choose one of {', '.join(PRESETS)}")
+    if workers < 1:
+        fail(f"--workers {workers} must be at least 1")
+    if refine < 1:
+        fail(f"--refine {refine} must be at least 1")
+    if n_traj is not None and n_traj < 1:
+        fail(f"--n-traj {n_traj} must be at least 1")
+    if mjcf is not None and scene:
+        fail("give either a SCENE or --mjcf FILE, not both")
+    if mjcf is None and not scene:
+        fail("name a SCENE (see `mdgs generate --list`) or give --mjcf FILE")
+    if mjcf is not None and not mjcf.is_file():
+        fail(f"MJCF file {mjcf} does not exist")
+    names = list(SCENES) if scene == "all" else [scene] if scene else [""]
+    for name in names:
+        if name and name not in SCENES:
+            fail(f"unknown scene '{name}'; run `mdgs generate --list` to see the scenes")
+    shard_t = _parse_shard(shard)
+    for name in names:
+        target = out / name if scene == "all" else out
+        cfg = GenerateConfig(
+            scene=name,
+            out=str(target),
+            preset=preset,
+            n_traj=n_traj,
+            seed=seed,
+            workers=workers,
+            shard=shard_t,
+            mjcf=str(mjcf) if mjcf else None,
+            substeps=substeps,
+            partition=PartitionParams(refine=refine),
+        )
+        try:
+            res = _run_with_progress(run, cfg, name or mjcf.stem)
+        except (DatasetError, SceneError, PartitionError, ValueError, FileNotFoundError) as e:
+            fail(str(e))
+        except KeyError as e:
+            fail(str(e.args[0]) if e.args else str(e))
+        _summary(res)
+
+
+def _run_with_progress(run, cfg, label: str):
+    progress, console = progress_bar()
+    with progress as bar:
+        task = bar.add_task(f"{label} trajectories", total=None)
+
+        def progress(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        return run(cfg, progress=progress)
+
+
+def _summary(res) -> None:
+    if not res.merged:
+        typer.echo(
+            f"{res.scene}: this shard is done ({res.trajectories} trajectories); the dataset is merged by the run that finishes last."
+        )
+        return
+    sizes = ", ".join(f"{split} {_human(p.stat().st_size)}" for split, p in res.files.items())
+    rate = (
+        f", {res.steps / res.seconds / 1e3:.0f}k steps/s"
+        if res.trajectories
+        else " (already complete)"
+    )
+    typer.echo(
+        f"{res.scene}: {res.n_nodes} nodes; {sizes}; {res.trajectories} trajectories in {res.seconds:.1f} s{rate} -> {res.out}"
+    )

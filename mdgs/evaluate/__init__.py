@@ -1,0 +1,146 @@
+"""Rollout evaluation of trained runs and non-learned references (``mdgs evaluate``): Tables 1-4 metrics.
+
+:func:`evaluate` rolls out every test trajectory with each run (one per seed) and with the
+references, and writes one JSON report and two plots. Every report carries the constant-twist
+reference (what a learned simulator must beat to have learned any dynamics); more references
+(e.g. MuJoCo at a coarser timestep) are added with ``references``.
+Stages: :mod:`~mdgs.evaluate.rollout`, :mod:`~mdgs.evaluate.metrics`, :mod:`~mdgs.evaluate.plots`.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from mdgs.data.split import SplitData, load_splits
+from mdgs.evaluate import rollout as _rollout
+from mdgs.evaluate.metrics import REPORT_TIMES, aggregate, rollout_metrics
+from mdgs.evaluate.plots import plot_rollout_mse, plot_trajectory
+from mdgs.evaluate.rollout import DIVERGENCE_FACTOR, Rollout
+from mdgs.models import Simulator, get_model, one_step_error
+from mdgs.runs import RunError, atomic_json, load_run, resolve_device
+
+__all__ = ["DIVERGENCE_FACTOR", "REPORT_TIMES", "Rollout", "evaluate", "evaluate_run",
+           "evaluate_reference", "reference_label"]
+
+
+def _check_identity(run, d: SplitData, want: dict) -> bool:
+    """True if ``d`` is a test variant of the run's scene; RunError if it is another scene."""
+    ident = d.identity()
+    if ident["mjcf_sha256"] == want["mjcf_sha256"]:
+        return False
+    from mdgs.scenes import SCENES
+
+    spec = SCENES.get(ident["scene"])
+    variant = spec is not None and spec.variant_of == want["scene"]
+    same_shape = ident["n_nodes"] == want["n_nodes"] and ident["n_actuators"] == want["n_actuators"]
+    if not (variant and same_shape):
+        raise RunError(f"{run} was trained on scene {want['scene']!r} ({want['n_nodes']} nodes) but {d.path} "
+                       f"holds scene {ident['scene']!r} ({ident['n_nodes']} nodes); evaluate it on data of "
+                       f"{want['scene']!r} or one of its test variants")
+    return True
+
+
+def evaluate_run(run: str | os.PathLike, d: SplitData, dev, batch_size: int = 64) -> tuple[dict, Rollout]:
+    """Evaluate one run on a loaded split -> (report dict, rollout). Raises RunError on a mismatch."""
+    model, state = load_run(run, dev)
+    variant = _check_identity(run, d, state["data_identity"])
+    r = _rollout.rollout(model, d, dev)
+    T, F = r.pos_mse.shape
+    rep = {
+        "run": str(run),
+        "data": d.path,
+        "scene": d.identity()["scene"],
+        "trained_on": state["data_identity"]["scene"],
+        "generalization_variant": variant,
+        "model": state["model_name"],
+        "parameters": model.parameter_count(),
+        "epochs_trained": int(state["epoch"]) + 1,
+        "trajectories": T,
+        "frames": F,
+        "frame_dt_s": d.frame_dt,
+        "one_step_mse_scaled": one_step_error(model, d, dev, batch_size),
+        "divergence_threshold_m2": r.threshold,
+        "diverged": [{"trajectory": int(i), "step": int(s), "time_s": float(s * d.frame_dt)}
+                     for i, s in enumerate(r.diverged_at) if s >= 0],
+    }
+    rep.update(rollout_metrics(r))
+    rep["status"] = "diverged" if rep["diverged"] else "ok"
+    return rep, r
+
+
+def reference_label(model: Simulator) -> str:
+    """How a reference is named in reports and plots: ``constant twist``, ``mujoco dt x20``, ..."""
+    if model.name == "mujoco":
+        return f"mujoco dt x{model.config.dt_factor}"
+    return model.name.replace("-", " ")
+
+
+def evaluate_reference(model: Simulator, d: SplitData, dev) -> tuple[dict, Rollout]:
+    """Rollout metrics of a non-learned model on ``d`` -> (report dict, rollout)."""
+    model = model.to(dev)
+    r = _rollout.rollout(model, d, dev)
+    rep = {"name": model.summary, "model": model.name, "label": reference_label(model),
+           "config": model.config_dict(), **rollout_metrics(r), "diverged": int((r.diverged_at >= 0).sum())}
+    return rep, r
+
+
+def evaluate(runs: list[str | os.PathLike], data: str | os.PathLike, split: str = "test",
+             json_path: str | os.PathLike | None = None, device: str = "auto", traj: int = 0,
+             references: list[tuple[str, dict]] = ()) -> dict:
+    """Evaluate runs (one per seed) on ``<data>/<split>.h5``; write the JSON report and plots.
+
+    ``references``: extra non-learned models as ``(name, config kwargs)``, e.g.
+    ``[("mujoco", {"dt_factor": 20})]``; the constant-twist reference is always included
+    (report key ``reference``; every reference also in ``references``).
+    The report goes to ``json_path`` or, by default, ``<run>/evaluation-<split>.json`` for one
+    run and ``<parent of the first run>/evaluation-<split>.json`` for several; the plots
+    ``<stem>-rollout-mse.png`` and ``<stem>-trajectory.png`` beside it. Returns the report.
+    """
+    dev = resolve_device(device)
+    if not runs:
+        raise RunError("name at least one run folder to evaluate")
+    if json_path is None:
+        base = Path(runs[0]) if len(runs) == 1 else Path(runs[0]).resolve().parent
+        json_path = base / f"evaluation-{split}.json"
+    json_path = Path(json_path)
+    if not json_path.parent.is_dir():
+        raise RunError(f"--json {json_path}: folder {json_path.parent} is not a folder; create it or choose another path")
+    if json_path.is_dir():
+        raise RunError(f"--json {json_path} is a folder; give a file path such as {json_path / 'report.json'}")
+    d = load_splits(data, (split,))[split]
+    if not 0 <= traj < d.x.shape[0]:
+        raise RunError(f"--traj {traj} is out of range; {d.path} has {d.x.shape[0]} trajectories")
+    refs = []
+    for name, kw in [("constant-twist", {}), *references]:
+        cls = get_model(name)
+        if cls.learned:
+            raise RunError(f"{name!r} is a learned model, not a reference; train it and pass its run folder")
+        refs.append(evaluate_reference(cls(cls.Config(**kw)), d, dev)[0])
+    reps, rolls = [], []
+    for run in runs:
+        rep, r = evaluate_run(run, d, dev)
+        reps.append(rep)
+        rolls.append(r)
+    report = {
+        "units": {"mse_tN": "m^2, position MSE over moving nodes and x, y, z at time step N (t = 1: first frame)",
+                  "mse_tN_velocity": "m^2/s^2", "one_step_mse_scaled": "dimensionless, the model's one-step loss",
+                  "divergence": f"NaN, or position MSE > {DIVERGENCE_FACTOR:g} x position variance of the split",
+                  "ms_per_frame": "ms of model.step per frame for all trajectories at once (batched)"},
+        "split": split,
+        "aggregate": aggregate(reps),
+        "reference": refs[0],
+        "references": refs,
+        "runs": reps,
+        "status": "diverged" if any(r["diverged"] for r in reps) else "ok",
+    }
+    for key in ("mse_t40", "mse_t110", "mse_t40_velocity", "mse_t110_velocity"):
+        report[key] = report["aggregate"][key]["mean"]
+    stem = json_path.with_suffix("")
+    report["plots"] = {"rollout_mse": str(stem.with_name(stem.name + "-rollout-mse.png")),
+                       "trajectory": str(stem.with_name(stem.name + "-trajectory.png"))}
+    plot_rollout_mse(reps, refs, d.x.shape[0], Path(report["plots"]["rollout_mse"]))
+    plot_trajectory(rolls[0], d, traj, Path(report["plots"]["trajectory"]))
+    atomic_json(report, json_path)
+    report["json"] = str(json_path)
+    return report

@@ -1,0 +1,192 @@
+"""The Simulator contract every model meets, learned or not, so trainer, evaluator and study never ask which.
+
+A model simulates the scenes of one dataset. It is built from the training split
+(:meth:`Simulator.from_data`, which fits its normalisation there and nowhere else), bound to
+the scene it simulates (:meth:`Simulator.bind`: the static graph and control map of a split,
+so a model can be evaluated on a test variant of its scene), and then
+
+- :meth:`Simulator.initial_state` reads the state it starts from out of recorded frames,
+- :meth:`Simulator.step` advances a batch of states by one frame under the recorded controls,
+- :meth:`Simulator.losses` gives its named training losses on a :class:`Batch`,
+  summed by the trainer with :meth:`Simulator.loss_weights`,
+- :meth:`Simulator.perturb` applies its own training-noise recipe to a batch.
+
+Shapes: ``B`` scenes in a batch, ``N`` nodes, ``H`` past frames (``history``), ``nu`` actuators.
+Every tensor of a :class:`State` is batch-first, so rows of two states can be spliced.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+from torch import nn
+
+from mdgs.data.split import SplitData
+
+__all__ = ["State", "Batch", "Simulator", "ModelError", "batch_of", "one_step_error"]
+
+
+class ModelError(Exception):
+    """A model that cannot simulate a scene or setting; the message names the input and the fix."""
+
+
+@dataclass
+class State:
+    """The state a model steps: node positions and velocities plus what else it carries.
+
+    x, v : [B, N, 3] node positions (m) and velocities (m/s).
+    extra : model-specific batch-first tensors (a velocity history, MuJoCo's qpos/qvel, ...).
+    """
+
+    x: torch.Tensor
+    v: torch.Tensor
+    extra: dict[str, torch.Tensor] = field(default_factory=dict)
+
+    def where(self, rows: torch.Tensor, other: State) -> State:
+        """Rows ``rows`` ([B] bool) taken from ``other``, the rest from ``self``."""
+        def pick(a, b):
+            m = rows.to(a.device).view(-1, *([1] * (a.dim() - 1)))
+            return torch.where(m, b.to(a.dtype), a)
+        return State(pick(self.x, other.x), pick(self.v, other.v),
+                     {k: pick(a, other.extra[k]) for k, a in self.extra.items()})
+
+
+@dataclass
+class Batch:
+    """Training pairs: frame ``t`` (with ``H`` past frames) and its true successor ``t + 1``.
+
+    x, v : [B, N, 3] at t.  ctrl : [B, nu] controls held over t -> t+1.
+    x_next, v_next : [B, N, 3] at t+1.
+    x_past, v_past : [B, H, N, 3] frames t-H .. t-1 (oldest first), or None when H = 0.
+    """
+
+    x: torch.Tensor
+    v: torch.Tensor
+    ctrl: torch.Tensor
+    x_next: torch.Tensor
+    v_next: torch.Tensor
+    x_past: torch.Tensor | None = None
+    v_past: torch.Tensor | None = None
+
+    def __len__(self) -> int:
+        return self.x.shape[0]
+
+
+def batch_of(d: SplitData, idx: np.ndarray, dev, history: int = 0) -> Batch:
+    """The :class:`Batch` of pairs ``idx`` [B, 2] (trajectory, frame t) of a split, on ``dev``."""
+    t, f = idx[:, 0], idx[:, 1]
+    g = lambda a, k: torch.from_numpy(a[t, f + k]).to(dev)  # noqa: E731
+    past = None, None
+    if history:
+        ks = np.arange(-history, 0)
+        past = tuple(torch.from_numpy(a[t[:, None], f[:, None] + ks]).to(dev) for a in (d.x, d.v))
+    return Batch(g(d.x, 0), g(d.v, 0), g(d.ctrl, 0), g(d.x, 1), g(d.v, 1), *past)
+
+
+class Simulator(nn.Module):
+    """Base class of every model in :data:`mdgs.models.MODELS` (see the module docstring).
+
+    Class attributes a model sets: ``name`` (its registry key), ``Config`` (a dataclass with
+    every default documented), ``learned`` (False for references that have nothing to train),
+    ``summary`` (one line for ``--help`` and tables). Instance attribute ``history``: past frames
+    the model needs besides the current one (0 for one-frame models).
+    """
+
+    name: ClassVar[str] = ""
+    Config: ClassVar[type] = object
+    learned: ClassVar[bool] = True
+    summary: ClassVar[str] = ""
+
+    def __init__(self, config: Any):
+        super().__init__()
+        self.config = config
+        self.history = 0
+        self._split: SplitData | None = None
+        # follows .to(device) so that models without parameters know their device too
+        self.register_buffer("_device_probe", torch.zeros(0), persistent=False)
+
+    # --- construction -------------------------------------------------------------------
+    @classmethod
+    def resolve_config(cls, config: Any, train: SplitData) -> Any:
+        """Fill the settings a model takes from the training data (scales, sizes); default: unchanged."""
+        return config
+
+    @classmethod
+    def from_data(cls, train: SplitData, config: Any | None = None) -> Simulator:
+        """Build the model for the scene of ``train`` and fit its normalisation on that split only."""
+        cfg = cls.resolve_config(config if config is not None else cls.Config(), train)
+        model = cls(cfg)
+        model.bind(train)
+        model.fit(train)
+        return model
+
+    def fit(self, train: SplitData) -> None:
+        """Fit normalisation statistics on the training split (default: nothing)."""
+
+    def bind(self, split: SplitData) -> None:
+        """Simulate the scene of ``split`` (its static graph and control map) from now on."""
+        self._split = split
+
+    def config_dict(self) -> dict:
+        """The resolved configuration, JSON-ready."""
+        return asdict(self.config)
+
+    def with_config(self, **changes) -> Any:
+        return replace(self.config, **changes)
+
+    # --- simulation ---------------------------------------------------------------------
+    def initial_state(self, split: SplitData, traj: np.ndarray, frame: int) -> State:
+        """The state of trajectories ``traj`` [B] at ``frame`` (frames ``frame - history .. frame`` are read)."""
+        dev = self.device
+        return State(torch.from_numpy(split.x[traj, frame]).to(dev), torch.from_numpy(split.v[traj, frame]).to(dev))
+
+    def step(self, state: State, ctrl: torch.Tensor) -> State:
+        """One frame forward: ``state`` at t and controls ``ctrl`` [B, nu] held over t -> t+1 -> state at t+1."""
+        raise NotImplementedError
+
+    # --- training -----------------------------------------------------------------------
+    def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """Named loss terms of one batch (scalars)."""
+        raise NotImplementedError(f"model {self.name!r} has nothing to train")
+
+    def loss_weights(self) -> dict[str, float]:
+        """Weight of each named loss in the total the trainer minimises."""
+        return {"mse": 1.0}
+
+    def validation_error(self, batch: Batch) -> torch.Tensor:
+        """One-step error on a clean batch, for model selection and the LR schedule (default: ``losses()['mse']``)."""
+        return self.losses(batch)["mse"]
+
+    def perturb(self, batch: Batch, gen: torch.Generator) -> Batch:
+        """The model's training-noise recipe applied to a batch (default: none)."""
+        return batch
+
+    def optimizer(self, lr: float):
+        """``(optimizer, scheduler, when)``: Adam (lr, betas 0.9/0.999) and ReduceLROnPlateau (patience 3,
+        factor 0.8) stepped on the validation error once per epoch (``when = "epoch"``)."""
+        opt = torch.optim.Adam(self.parameters(), lr=lr, betas=(0.9, 0.999))
+        return opt, torch.optim.lr_scheduler.ReduceLROnPlateau(opt, patience=3, factor=0.8), "epoch"
+
+    @property
+    def device(self) -> torch.device:
+        return self._device_probe.device
+
+    def parameter_count(self) -> int:
+        return sum(p.numel() for p in self.parameters())
+
+
+@torch.no_grad()
+def one_step_error(model: Simulator, d: SplitData, dev, batch_size: int = 64, max_pairs: int = 0) -> float:
+    """Mean :meth:`~mdgs.models.base.Simulator.validation_error` over the pairs of a split (clean inputs)."""
+    model.eval()
+    pairs = d.pairs(model.history)
+    if max_pairs and len(pairs) > max_pairs:
+        pairs = pairs[np.linspace(0, len(pairs) - 1, max_pairs).astype(int)]
+    err = 0.0
+    for s in range(0, len(pairs), batch_size):
+        b = batch_of(d, pairs[s:s + batch_size], dev, model.history)
+        err += model.validation_error(b).item() * len(b)
+    return err / len(pairs)

@@ -1,0 +1,31 @@
+"""Network blocks shared by the models: the GCN of Kipf & Welling (2017) on a scene's propagator."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from mdgs.graphs import Propagator
+
+__all__ = ["GCN"]
+
+
+class GCN(nn.Module):
+    """``H^{l+1} = ReLU(A_hat H^l W^l + b^l)``, no activation after the last layer (Kipf & Welling 2017)."""
+
+    def __init__(self, d_in: int, hidden: int, d_out: int, layers: int = 3):
+        super().__init__()
+        dims = [d_in] + [hidden] * (layers - 1) + [d_out]
+        self.lins = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:], strict=True))
+
+    def forward(self, prop: Propagator, h: torch.Tensor) -> torch.Tensor:
+        """``h`` [B, N, d_in] -> [B, N, d_out]."""
+        for k, lin in enumerate(self.lins):
+            # propagate on the narrower side of the linear map (fewer features to gather)
+            if lin.in_features <= lin.out_features:
+                h = lin(prop(h))
+            else:
+                h = prop(h @ lin.weight.T) + lin.bias
+            if k < len(self.lins) - 1:
+                h = torch.relu(h)
+        return h

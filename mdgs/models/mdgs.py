@@ -1,0 +1,439 @@
+"""The MDGS simulator (Sections 3.2-3.4, Appendix B) and its variants mdgs-nc and mdgs-sc.
+
+One step, for a batch of ``B`` graphs of one scene with ``N`` nodes:
+
+    z_i        = [x_i || v_i || k_i]                          node features (Section 3.1)
+    F~         = g^F~(G~, Z)                                   non-contact forces, object graph (Eq. 4)
+    Z-         = g^Z-(G- u G~, Z)                              global features, union graph (Eq. 5)
+    F-         = g^F-(G-, [Z || Z-]),  0 off contact edges     contact forces, contact graph (Eq. 6)
+    F          = F- + F~                                       (Eq. 7)
+    z'_i       = [z_i || lambda F_i]                           (Eq. 8)
+    Z^(t+1)    = g(G~, Z')                                     state, object graph (Eq. 9)
+
+followed by an integrator (:mod:`mdgs.models.integrators`) and the structural constraint
+module (Appendix B.1.3, :mod:`mdgs.structure`). Every GNN is a GCN (Kipf & Welling 2017) with
+3 layers, hidden 200, ReLU (Appendix B.2). Training (Section 3.4, Appendix B.2): L_mse (Eq. 10)
+plus the Kane constraint L_cst (Eqs. 11-15) summed; Adam (lr 1e-3) with ReduceLROnPlateau
+(patience 3, factor 0.8); training noise on the input frame (:func:`noise_sigmas`).
+
+Actuated scenes: each actuator's control ``ctrl_k`` (actuator units) enters the node features
+of the body it drives (+ctrl_k) and of that body's parent (-ctrl_k, the reaction), one channel
+per actuator (:func:`mdgs.data.split.control_map`; docs/ambiguities.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, replace
+
+import numpy as np
+import torch
+
+from mdgs.data.split import SplitData
+from mdgs.graphs import Propagator, SceneGraph, contact_edges, gcn_norm
+from mdgs.losses import constraint_loss, mse_loss, speeds_of
+from mdgs.models.base import Batch, ModelError, Simulator, State
+from mdgs.models.integrators import INTEGRATORS
+from mdgs.models.layers import GCN
+from mdgs.rigid import advance, perturb, twist
+from mdgs.structure import align_to_reference
+
+__all__ = ["MDGSConfig", "ModelConfig", "VARIANTS", "Prediction", "MDGS", "MDGSNoConstraint",
+           "MDGSSingleSpeed", "noise_sigmas", "CUBLI_NOISE", "INCREMENT_NOISE"]
+
+#: Variants of Table 1: the full method, no Kane constraint, single-speed constraint.
+VARIANTS = ("mdgs", "mdgs-nc", "mdgs-sc")
+#: Training noise of Appendix B.2: absolute sigma (m, m/s) for Cubli scenes.
+CUBLI_NOISE = 4e-4
+#: Training noise of Appendix B.2 for the other scenes, as a fraction of the per-step increment std.
+INCREMENT_NOISE = 0.06
+
+
+@dataclass(frozen=True)
+class MDGSConfig:
+    """Hyperparameters of :class:`MDGS`; every default is documented here.
+
+    Attributes
+    ----------
+    variant : "mdgs" (L_mse + L_cst over speeds x, y, z), "mdgs-nc" (no L_cst),
+        "mdgs-sc" (L_cst along the single speed x).
+    structure : apply the structural constraint module (B.1.3) in training and rollout.
+    hidden : GCN hidden width (B.2: 200).
+    layers : GCN layers (B.2: 3).
+    global_dim : width of the global features Z- of Eq. (5) (= hidden).
+    control_dim : per-node, per-frame inputs appended to k_i (actuator controls), 0 if none.
+    contact : build the contact branch (g^Z-, g^F-); set from the data (a scene that can have
+        no contact has none).
+    lam : lambda of Eq. (8); ``None`` -> ``1 / force_scale`` (forces enter at O(1)).
+    force_scale : N; force networks output ``force_scale * GCN(.)``.
+    dx_scale, dv_scale : m and m/s; g outputs ``[dx / dx_scale, dv / dv_scale]``.
+    bound : "paper" (Eq. 12) or "corrected" (kane's corrected statement) for L_cst.
+    integrator : how g's output ``[g_x || g_v]`` becomes ``Z^(t+1)``, a key of
+        :data:`mdgs.models.integrators.INTEGRATORS`: "rigid" (default), "twist", "euler",
+        "direct" (the paper's literal Eq. 9); see docs/ambiguities.md.
+    dvc_scale, dw_scale : m/s and rad/s, output scales of the "twist" integrator (spread of the
+        objects' velocity and angular velocity increments in the training data).
+    dt : frame interval, s (used by "rigid", "twist" and "euler"); set from the data.
+    cst_weight : weight of L_cst in the total loss (paper: summed, i.e. 1).
+    dense_max_nodes : object graphs up to this many nodes propagate densely.
+    noise : training noise spec, "auto" (B.2: ``abs:4e-4`` for Cubli scenes, ``inc:0.06``
+        otherwise), ``abs:S``, ``inc:F`` or ``none`` (:func:`noise_sigmas`).
+    noise_sigma_x, noise_sigma_v : m and m/s, the resolved noise (set from the data; -1: unset).
+    Scales left at 1.0, ``control_dim``, ``contact``, ``dt`` and the sigmas are filled from the
+    training split by :meth:`MDGS.resolve_config`.
+    """
+
+    variant: str = "mdgs"
+    structure: bool = True
+    hidden: int = 200
+    layers: int = 3
+    global_dim: int = 200
+    control_dim: int = 0
+    contact: bool = True
+    lam: float | None = None
+    force_scale: float = 1.0
+    dx_scale: float = 1.0
+    dv_scale: float = 1.0
+    bound: str = "paper"
+    integrator: str = "rigid"
+    dvc_scale: float = 1.0
+    dw_scale: float = 1.0
+    dt: float = 0.0
+    cst_weight: float = 1.0
+    dense_max_nodes: int = 256
+    noise: str = "auto"
+    noise_sigma_x: float = -1.0
+    noise_sigma_v: float = -1.0
+
+    def __post_init__(self):
+        if self.variant not in VARIANTS:
+            raise ValueError(f"variant must be one of {', '.join(VARIANTS)}, got {self.variant!r}")
+        if self.bound not in ("paper", "corrected"):
+            raise ValueError(f"bound must be 'paper' or 'corrected', got {self.bound!r}")
+        if self.integrator not in INTEGRATORS:
+            raise ValueError(f"integrator must be one of {', '.join(INTEGRATORS)}, got {self.integrator!r}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+#: The name the configuration had before the model registry.
+ModelConfig = MDGSConfig
+
+#: Static node properties k_i: mass, volume, tau, object type one-hot (3).
+N_PROPERTIES = 6
+
+
+@dataclass
+class Prediction:
+    """Output of one network pass (shapes ``[B, N, 3]``; forces in N).
+
+    x, v : predicted positions (m) and velocities (m/s) at t+1.
+    force : F of Eq. (7); force_noncontact : F~ (Eq. 4); force_contact : F- (Eq. 6).
+    contact_edges : [2, E] batched contact edges used (empty without a contact branch).
+    """
+
+    x: torch.Tensor
+    v: torch.Tensor
+    force: torch.Tensor
+    force_noncontact: torch.Tensor
+    force_contact: torch.Tensor
+    contact_edges: torch.Tensor
+
+
+def noise_sigmas(spec: str, d: SplitData) -> tuple[float, float]:
+    """Noise std ``(sigma_x [m], sigma_v [m/s])`` of the spec ``auto``, ``abs:S``, ``inc:F`` or ``none``.
+
+    What is perturbed: the *input* frame only (:meth:`MDGS.perturb`); the targets
+    ``x_{t+1}, v_{t+1}`` stay clean, so the model learns to pull a perturbed state back onto the
+    true trajectory (the noise-corrected target of Sanchez-Gonzalez et al. 2020 for a one-frame
+    input). ``inc:F`` sets each sigma to F times the std of the per-step increments
+    ``x_{t+1} - x_t`` (resp. ``v_{t+1} - v_t``) of the training set: the scale the model
+    predicts, so the noise never swamps one step. The paper's "0.06 times the standard
+    deviation" names no quantity; a fraction of the states' own spread (metres for positions)
+    is larger than a whole step and was found to make the one-step target unlearnable. Cubli
+    scenes use the paper's absolute 4e-4 (m and m/s).
+    """
+    s = spec.strip().lower()
+    if s == "auto":
+        s = f"abs:{CUBLI_NOISE}" if str(d.attrs.get("family", "")) == "cubli" else f"inc:{INCREMENT_NOISE}"
+    if s == "none":
+        return 0.0, 0.0
+    kind, _, val = s.partition(":")
+    try:
+        f = float(val)
+    except ValueError:
+        f = -1.0
+    if kind not in ("abs", "inc") or not np.isfinite(f) or f < 0:
+        raise ModelError(f"--noise {spec!r} is not understood; use auto, none, abs:SIGMA (m, m/s) or inc:FRACTION")
+    if kind == "abs":
+        return f, f
+    dx, dv = _increments(d)
+    return f * float(dx.std()), f * float(dv.std())
+
+
+def _increments(d: SplitData) -> tuple[np.ndarray, np.ndarray]:
+    mv = d.moving
+    return (d.x[:, 1:] - d.x[:, :-1])[:, :, mv], (d.v[:, 1:] - d.v[:, :-1])[:, :, mv]
+
+
+def _rigid_increments(d: SplitData, scene: SceneGraph, dt: float, trapezoidal: bool = False,
+                      max_pairs: int = 4096) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What the rigid integrators' g predicts, on (up to ``max_pairs``) training pairs.
+
+    Returns the node velocity increments of the rigid twist change ``(v_c' - v_c) + (w' - w) x r_i``
+    and the position residual ``x' - advance(x, twist', dt)``, both [P, N_moving, 3], and the
+    moving objects' increments ``v_c' - v_c`` and ``w' - w`` [P, S_moving, 3].
+    """
+    pairs = d.pairs()
+    if len(pairs) > max_pairs:
+        pairs = pairs[np.linspace(0, len(pairs) - 1, max_pairs).astype(int)]
+    t, f = pairs[:, 0], pairs[:, 1]
+    x0, v0 = torch.from_numpy(d.x[t, f]).double(), torch.from_numpy(d.v[t, f]).double()
+    x1, v1 = torch.from_numpy(d.x[t, f + 1]).double(), torch.from_numpy(d.v[t, f + 1]).double()
+    seg, n, mass = scene.obj, scene.n_obj, scene.mass
+    a, b = twist(x0, v0, seg, n, mass), twist(x1, v1, seg, n, mass)
+    r = x0 - a.c[:, seg]
+    dv = (b.vc - a.vc)[:, seg] + torch.linalg.cross((b.omega - a.omega)[:, seg], r, dim=-1)
+    xr, _ = advance(x0, a, b.vc, b.omega, dt, seg, trapezoidal=trapezoidal)
+    mv = d.moving
+    objs = np.unique(np.asarray(seg)[mv])
+    return (dv[:, mv].numpy(), (x1 - xr)[:, mv].numpy(), (b.vc - a.vc)[:, objs].numpy(),
+            (b.omega - a.omega)[:, objs].numpy())
+
+
+class MDGS(Simulator):
+    """The MDGS simulator (module docstring); registry name ``mdgs`` (and ``mdgs-nc``, ``mdgs-sc``)."""
+
+    name = "mdgs"
+    Config = MDGSConfig
+    summary = "MDGS: GCN force networks + state network, Kane constraint L_cst over speeds x, y, z"
+
+    def __init__(self, config: MDGSConfig = MDGSConfig()):
+        super().__init__(config)
+        c = config
+        d_z = 3 + 3 + N_PROPERTIES + c.control_dim
+        self.d_z = d_z
+        self.contact = c.contact
+        self.force_noncontact = GCN(d_z, c.hidden, 3, c.layers)  # g^F~
+        if c.contact:
+            self.global_gather = GCN(d_z, c.hidden, c.global_dim, c.layers)  # g^Z-
+            self.force_contact = GCN(d_z + c.global_dim, c.hidden, 3, c.layers)  # g^F-
+        self.state = GCN(d_z + 3, c.hidden, 6, c.layers)  # g
+        # input normalisation of z (set from training data by fit / set_normalization)
+        self.register_buffer("z_mean", torch.zeros(d_z))
+        self.register_buffer("z_std", torch.ones(d_z))
+        self._scene: SceneGraph | None = None
+        self._scenes: dict = {}
+        self._sign: torch.Tensor | None = None
+
+    # --- construction ------------------------------------------------------------------------
+    @classmethod
+    def resolve_config(cls, config: MDGSConfig, d: SplitData) -> MDGSConfig:
+        """Fill scales left at 1.0 from the training data; set ``control_dim``, ``contact``, ``dt``, sigmas.
+
+        ``dx_scale``, ``dv_scale``: std of what g predicts under the chosen integrator (position
+        residual and velocity increment); ``force_scale``: mean ``|M dv / dt|`` of an element.
+        """
+        cfg = config
+        dx, dv = _increments(d)
+        mass = np.asarray(d.static["node_mass"])[d.moving]
+        kw = {"control_dim": int(d.ctrl.shape[-1]), "contact": bool(d.has_contact)}
+        if cfg.dt <= 0.0:
+            kw["dt"] = float(d.frame_dt)
+        dt = kw.get("dt", cfg.dt)
+        f_scale = float(max(np.abs(mass[None, None, :, None] * dv / d.frame_dt).mean(), 1e-9))
+        if cfg.integrator == "euler":  # the learned position term is the residual x' - x - dt v'
+            xs, vs = d.x[..., d.moving, :], d.v[..., d.moving, :]
+            dx = (xs[:, 1:] - xs[:, :-1] - dt * vs[:, 1:]).reshape(-1, 3)
+        elif cfg.integrator in ("rigid", "twist"):
+            scene = SceneGraph.from_static(d.static, has_contact=d.has_contact)
+            dv, dx, dvc, dw = _rigid_increments(d, scene, dt, trapezoidal=cfg.integrator == "twist")
+            if cfg.integrator == "twist":
+                if cfg.dvc_scale == 1.0:
+                    kw["dvc_scale"] = float(max(dvc.std(), 1e-12))
+                if cfg.dw_scale == 1.0:
+                    kw["dw_scale"] = float(max(dw.std(), 1e-12))
+        # twist: g has no position output; a velocity error weighs like the position error it makes
+        # over half a frame. Otherwise: the spread of g's position target.
+        dx_auto = dt / 2 * float(dv.std()) if cfg.integrator == "twist" else float(dx.std())
+        if cfg.dx_scale == 1.0:
+            kw["dx_scale"] = max(dx_auto, 1e-12)
+        if cfg.dv_scale == 1.0:
+            kw["dv_scale"] = float(max(dv.std(), 1e-12))
+        if cfg.force_scale == 1.0:  # typical |M dv / dt| of an element, N
+            kw["force_scale"] = f_scale
+        kw["noise_sigma_x"], kw["noise_sigma_v"] = noise_sigmas(cfg.noise, d)
+        return replace(cfg, **kw)
+
+    def fit(self, d: SplitData) -> None:
+        """Mean and std of the raw node features z over 256 random training frames."""
+        n = d.x.shape[0] * d.x.shape[1]
+        idx = np.random.default_rng(0).choice(n, size=min(256, n), replace=False)
+        x = torch.tensor(d.x.reshape(-1, *d.x.shape[2:])[idx])
+        v = torch.tensor(d.v.reshape(-1, *d.v.shape[2:])[idx])
+        c = torch.tensor(d.control.reshape(-1, *d.control.shape[2:])[idx])
+        scene = SceneGraph.from_static(d.static, has_contact=d.has_contact)
+        z = self.node_features(scene, x, v, c).reshape(-1, self.d_z)
+        self.set_normalization(z.mean(0), z.std(0))
+
+    def bind(self, split: SplitData) -> None:
+        """Use the static graph and control map of ``split`` (same node and actuator counts)."""
+        if int(split.ctrl.shape[-1]) != self.config.control_dim:
+            raise ModelError(f"{split.path} has {split.ctrl.shape[-1]} actuators but the model was built for "
+                             f"{self.config.control_dim}; use data of the scene it was trained on")
+        super().bind(split)
+        self._scene = SceneGraph.from_static(split.static, has_contact=split.has_contact)
+        self._scenes = {}
+        self._sign = torch.from_numpy(np.asarray(split.control_sign, np.float32))
+
+    def scene_on(self, dev) -> SceneGraph:
+        """The bound scene graph on ``dev`` (cached)."""
+        if self._scene is None:
+            raise ModelError("the model is not bound to a scene; call bind(split) first")
+        key = str(dev)
+        if key not in self._scenes:
+            self._scenes[key] = self._scene.to(dev)
+        return self._scenes[key]
+
+    def node_controls(self, ctrl: torch.Tensor) -> torch.Tensor:
+        """Actuator controls [B, nu] -> per-node control features [B, N, nu] (+ on the driven body, - on its parent)."""
+        sign = self._sign.to(ctrl.device)
+        return ctrl.to(torch.float32)[:, None, :] * sign.T[None]
+
+    def set_normalization(self, mean: torch.Tensor, std: torch.Tensor) -> None:
+        """Set the per-feature mean and std of ``z`` (``[d_z]``); std is floored at 1e-8."""
+        self.z_mean.copy_(torch.as_tensor(mean, dtype=self.z_mean.dtype))
+        self.z_std.copy_(torch.as_tensor(std, dtype=self.z_std.dtype).clamp_min(1e-8))
+
+    def force_parameters(self):
+        """Parameters of the force networks g^F~, g^F- (and g^Z-, which feeds only g^F-)."""
+        mods = [self.force_noncontact] + ([self.global_gather, self.force_contact] if self.contact else [])
+        return [p for m in mods for p in m.parameters()]
+
+    # --- the network ---------------------------------------------------------------------------
+    def node_features(self, scene: SceneGraph, x: torch.Tensor, v: torch.Tensor,
+                      control: torch.Tensor | None = None) -> torch.Tensor:
+        """Raw ``z = [x || v || k]`` -> [B, N, d_z]; ``control`` [B, N, control_dim] joins ``k``."""
+        B, N, _ = x.shape
+        k = scene.properties().to(x.device, x.dtype).expand(B, N, -1)
+        parts = [x, v, k]
+        if self.config.control_dim:
+            if control is None:
+                raise ValueError(f"this model expects control inputs of width {self.config.control_dim}")
+            parts.append(control.to(x.dtype))
+        return torch.cat(parts, dim=-1)
+
+    def forward(self, scene: SceneGraph, x: torch.Tensor, v: torch.Tensor,
+                control: torch.Tensor | None = None) -> Prediction:
+        """One step ``Z^(t) -> Z^(t+1)`` on ``scene`` (same device).
+
+        x, v : [B, N, 3] centroid positions (m) and velocities (m/s) at t.
+        control : [B, N, control_dim] per-node control features, or None.
+        """
+        c = self.config
+        B, N, _ = x.shape
+        dev, dt = x.device, x.dtype
+        z = (self.node_features(scene, x, v, control) - self.z_mean) / self.z_std
+        obj_prop = scene.object_graph.propagator(B, dev, dt)
+        f_nc = c.force_scale * self.force_noncontact(obj_prop, z)  # Eq. (4)
+        if self.contact and scene.has_contact:
+            ce = contact_edges(x.detach(), scene.obj, scene.contact_radius, scene.static)
+            z_glob = self.global_gather(scene.object_graph.union(ce, B, dev, dt), z)  # Eq. (5)
+            con_prop = Propagator(csr=gcn_norm(ce, B * N, dt, dev))
+            f_c = c.force_scale * self.force_contact(con_prop, torch.cat([z, z_glob], -1))  # Eq. (6)
+            touched = torch.zeros(B * N, dtype=torch.bool, device=dev)
+            touched[ce[0]] = True
+            f_c = f_c * touched.view(B, N, 1)  # zero off contact edges
+        else:
+            ce = torch.zeros(2, 0, dtype=torch.long, device=dev)
+            f_c = torch.zeros_like(f_nc)
+        f = f_c + f_nc  # Eq. (7)
+        lam = c.lam if c.lam is not None else 1.0 / c.force_scale
+        out = self.state(obj_prop, torch.cat([z, lam * f], -1))  # Eqs. (8)-(9)
+        x_next, v_next = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=c.dx_scale,
+                                                   dv_scale=c.dv_scale, dvc_scale=c.dvc_scale,
+                                                   dw_scale=c.dw_scale)
+        moving = ~scene.static.to(dev)
+        if c.structure:
+            x_next = align_to_reference(x_next, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj, mask=moving)
+        # static elements never move
+        m = moving.view(1, N, 1)
+        x_next = torch.where(m, x_next, x)
+        v_next = torch.where(m, v_next, torch.zeros_like(v_next))
+        return Prediction(x_next, v_next, f, f_nc, f_c, ce)
+
+    # --- the Simulator contract ------------------------------------------------------------------
+    def step(self, state: State, ctrl: torch.Tensor) -> State:
+        p = self(self.scene_on(state.x.device), state.x, state.v, self.node_controls(ctrl))
+        return State(p.x, p.v)
+
+    def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
+        """``mse``: Eq. (10) on scaled ``[x || v]``; ``cst``: Eqs. (13)-(15) (zero for mdgs-nc)."""
+        cfg = self.config
+        scene = self.scene_on(batch.x.device)
+        moving = ~scene.static
+        p = self(scene, batch.x, batch.v, self.node_controls(batch.ctrl))
+        l_mse = mse_loss(p.x, p.v, batch.x_next, batch.v_next, moving, cfg.dx_scale, cfg.dv_scale)  # Eq. (10)
+        l_cst = constraint_loss(p.force, batch.x, batch.v, p.x, p.v, scene.mass, scene.tau, scene.obj, scene.n_obj,
+                                cfg.dt, moving=moving, bound=cfg.bound, speeds=speeds_of(cfg.variant),
+                                scale=cfg.force_scale * int(moving.sum()))  # Eqs. (13)-(15)
+        return {"mse": l_mse, "cst": l_cst}
+
+    def loss_weights(self) -> dict[str, float]:
+        return {"mse": 1.0, "cst": self.config.cst_weight}  # Section 3.4: summed
+
+    def validation_error(self, batch: Batch) -> torch.Tensor:
+        """One-step L_mse (Eq. 10, scaled by the model's dx/dv scales, moving nodes)."""
+        cfg = self.config
+        scene = self.scene_on(batch.x.device)
+        p = self(scene, batch.x, batch.v, self.node_controls(batch.ctrl))
+        return mse_loss(p.x, p.v, batch.x_next, batch.v_next, ~scene.static, cfg.dx_scale, cfg.dv_scale)
+
+    def perturb(self, batch: Batch, gen: torch.Generator) -> Batch:
+        """Training noise (B.2) on the input frame's moving nodes; targets stay clean (:func:`noise_sigmas`).
+
+        With the rigid integrators each object is moved and re-twisted rigidly by the rigid part
+        of the noise (rigid rollouts make rigid errors); otherwise every node independently.
+        """
+        cfg = self.config
+        scene = self.scene_on(batch.x.device)
+        mv = (~scene.static).view(1, -1, 1).to(torch.float32)
+        x, v = batch.x, batch.v
+        nx = cfg.noise_sigma_x * mv * torch.randn(x.shape, generator=gen, device=x.device)
+        nv = cfg.noise_sigma_v * mv * torch.randn(v.shape, generator=gen, device=v.device)
+        if cfg.integrator in ("rigid", "twist"):
+            xn, vn = perturb(x, v, nx, nv, scene.obj, scene.n_obj, scene.mass)
+            x, v = torch.where(mv > 0, xn, x), torch.where(mv > 0, vn, v)
+        else:
+            x, v = x + nx, v + nv
+        return replace(batch, x=x, v=v)
+
+
+@dataclass(frozen=True)
+class _NCConfig(MDGSConfig):
+    """:class:`MDGSConfig` with ``variant = "mdgs-nc"`` (no Kane constraint)."""
+
+    variant: str = "mdgs-nc"
+
+
+@dataclass(frozen=True)
+class _SCConfig(MDGSConfig):
+    """:class:`MDGSConfig` with ``variant = "mdgs-sc"`` (constraint along the single speed x)."""
+
+    variant: str = "mdgs-sc"
+
+
+class MDGSNoConstraint(MDGS):
+    """MDGS without the Kane constraint (Table 1, "MDGS-NC")."""
+
+    name = "mdgs-nc"
+    Config = _NCConfig
+    summary = "MDGS without L_cst (ablation)"
+
+
+class MDGSSingleSpeed(MDGS):
+    """MDGS with L_cst along the single speed x (Table 1, "MDGS-SC")."""
+
+    name = "mdgs-sc"
+    Config = _SCConfig
+    summary = "MDGS with L_cst along the single speed x (ablation)"

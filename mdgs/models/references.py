@@ -1,0 +1,175 @@
+"""Non-learned peers that sit beside every learned model: constant twist, and MuJoCo at a coarser timestep.
+
+Both meet the :class:`~mdgs.models.base.Simulator` contract and have nothing to train:
+
+- :class:`ConstantTwist` (``constant-twist``): every moving body keeps its velocity and
+  angular velocity (no forces, no contact) and moves rigidly over the frame. A learned
+  simulator that does not beat it has learned no dynamics (gravity, contact, actuation).
+- :class:`MuJoCoReference` (``mujoco``): the physics engine that made the data, replaying
+  each test trajectory from its recorded initial state under the recorded controls, with the
+  timestep ``dt_factor`` times the dataset's (``substeps / dt_factor`` steps per frame). At
+  ``dt_factor = 1`` it reproduces the data (up to the solver's warm start, which is not
+  recorded); coarser, it is the cheap, strong, non-learned peer of a learned simulator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+import torch
+
+from mdgs.data.split import SplitData
+from mdgs.graphs import SceneGraph
+from mdgs.models.base import ModelError, Simulator, State
+from mdgs.rigid import advance, twist
+
+__all__ = ["ConstantTwist", "ConstantTwistConfig", "MuJoCoReference", "MuJoCoConfig"]
+
+
+@dataclass(frozen=True)
+class ConstantTwistConfig:
+    """The constant-twist reference has no settings."""
+
+
+class ConstantTwist(Simulator):
+    """Every moving body keeps its twist (least-squares fit of its nodes, :func:`mdgs.rigid.twist`) and
+    moves rigidly over ``frame_dt`` (:func:`mdgs.rigid.advance`); static nodes stay."""
+
+    name = "constant-twist"
+    Config = ConstantTwistConfig
+    learned = False
+    summary = "reference: every body keeps its velocity and angular velocity (no forces)"
+
+    def bind(self, split: SplitData) -> None:
+        super().bind(split)
+        self._scene = SceneGraph.from_static(split.static, has_contact=split.has_contact)
+        self._dt = float(split.frame_dt)
+
+    def step(self, state: State, ctrl: torch.Tensor) -> State:
+        x, v = state.x, state.v
+        sc = self._scene
+        seg, mass = sc.obj.to(x.device), sc.mass.to(x.device)
+        tw = twist(x, v, seg, sc.n_obj, mass)
+        xn, vn = advance(x, tw, tw.vc, tw.omega, self._dt, seg)
+        m = (~sc.static).to(x.device).view(1, -1, 1)
+        return State(torch.where(m, xn, x), torch.where(m, vn, torch.zeros_like(vn)))
+
+
+@dataclass(frozen=True)
+class MuJoCoConfig:
+    """Settings of :class:`MuJoCoReference`.
+
+    dt_factor : timestep as a multiple of the dataset's ``dt`` (1: the data's own timestep;
+        it must divide the dataset's substeps per frame, e.g. 20 = one step per frame for
+        20-substep data).
+    """
+
+    dt_factor: int = 1
+
+    def __post_init__(self):
+        if int(self.dt_factor) < 1:
+            raise ValueError(f"dt_factor must be a positive integer, got {self.dt_factor!r}")
+
+
+class MuJoCoReference(Simulator):
+    """MuJoCo replaying recorded trajectories at ``dt_factor`` times the dataset timestep.
+
+    State ``extra``: ``qpos`` [B, nq], ``qvel`` [B, nv], ``act`` [B, na] (float64). Node positions
+    and velocities are the element centroids moved with their bodies (``node_centroid`` in the
+    body frame). A step in which MuJoCo warns of a bad acceleration (and resets) yields NaN, so
+    the evaluator counts the trajectory as diverged instead of silently restarting it.
+    """
+
+    name = "mujoco"
+    Config = MuJoCoConfig
+    learned = False
+    summary = "reference: MuJoCo from the recorded initial state at dt_factor x the data's timestep"
+
+    def bind(self, split: SplitData) -> None:
+        super().bind(split)
+        k = int(self.config.dt_factor)
+        sub = int(split.attrs["substeps"])
+        if sub % k:
+            raise ModelError(f"dt_factor {k} does not divide the {sub} integrator steps per frame of {split.path}; "
+                             f"choose a divisor of {sub}")
+        try:
+            spec = mujoco.MjSpec.from_string(split.mjcf)
+            spec.option.integrator = getattr(mujoco.mjtIntegrator, "mjINT_" + str(split.attrs["integrator"]))
+            self._model = spec.compile()
+        except Exception as e:  # noqa: BLE001 - MuJoCo reports parse/compile problems as several types
+            raise ModelError(f"MuJoCo cannot rebuild the scene of {split.path} ({e}); regenerate the dataset") from None
+        self._model.opt.timestep = float(split.attrs["dt"]) * k
+        self._steps = sub // k
+        self._data = mujoco.MjData(self._model)
+        self._rows: list = []
+        st = split.static
+        self._body = np.asarray(st["node_body"], int)
+        self._local = np.asarray(st["node_centroid"], float)
+        self._moving = ~np.asarray(st["node_static"], bool)
+
+    def initial_state(self, split: SplitData, traj: np.ndarray, frame: int) -> State:
+        base = super().initial_state(split, traj, frame)
+        dev = self.device
+        ex = {k: torch.from_numpy(np.asarray(getattr(split, k)[traj, frame], np.float64)).to(dev)
+              for k in ("qpos", "qvel", "act")}
+        return State(base.x, base.v, ex)
+
+    def _nodes(self, d: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        """Node positions and velocities [N, 3] of the state in ``d`` (runs MuJoCo's kinematics)."""
+        m = self._model
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_comVel(m, d)
+        b = self._body
+        x = d.xpos[b] + np.einsum("nij,nj->ni", d.xmat[b].reshape(-1, 3, 3), self._local)
+        # cvel: [angular; linear] velocity about the subtree centre of mass of the body's root
+        w, lin = d.cvel[b, :3], d.cvel[b, 3:]
+        v = lin + np.cross(w, x - d.subtree_com[m.body_rootid[b]])
+        v[~self._moving] = 0.0
+        return x, v
+
+    def step(self, state: State, ctrl: torch.Tensor) -> State:
+        m = self._model
+        B = state.x.shape[0]
+        qpos, qvel, act = (state.extra[k].cpu().numpy() for k in ("qpos", "qvel", "act"))
+        ctrl = ctrl.detach().cpu().numpy().astype(np.float64)
+        out = {k: np.empty_like(a) for k, a in (("qpos", qpos), ("qvel", qvel), ("act", act))}
+        xs = np.empty((B, len(self._body), 3))
+        vs = np.empty_like(xs)
+        bad = int(mujoco.mjtWarning.mjWARN_BADQACC)
+        if len(self._rows) != B:  # one MjData per trajectory, so each keeps its solver warm start
+            self._rows = [mujoco.MjData(m) for _ in range(B)]
+        for i, d in enumerate(self._rows):
+            d.warning[bad].number = 0
+            d.qpos[:], d.qvel[:] = qpos[i], qvel[i]
+            if m.na:
+                d.act[:] = act[i]
+            if m.nu:
+                d.ctrl[:] = ctrl[i]
+            for _ in range(self._steps):
+                mujoco.mj_step(m, d)
+            out["qpos"][i], out["qvel"][i] = d.qpos, d.qvel
+            out["act"][i] = d.act if m.na else act[i]
+            xs[i], vs[i] = self._nodes(d)
+            if d.warning[bad].number or not np.isfinite(d.qacc).all():
+                xs[i] = vs[i] = np.nan
+        dev, dt = state.x.device, state.x.dtype
+        return State(torch.from_numpy(xs).to(dev, dt), torch.from_numpy(vs).to(dev, dt),
+                     {k: torch.from_numpy(a).to(dev) for k, a in out.items()})
+
+    def timed_steps(self, split: SplitData, traj: int, frames: int) -> float:
+        """Wall seconds of ``frames`` frames of MuJoCo stepping alone (no node mapping) from a recorded state."""
+        import time
+
+        m, d = self._model, self._data
+        mujoco.mj_resetData(m, d)
+        d.qpos[:], d.qvel[:] = split.qpos[traj, 0], split.qvel[traj, 0]
+        t0 = time.perf_counter()
+        for f in range(frames):
+            if m.nu:
+                d.ctrl[:] = split.ctrl[traj, f % split.ctrl.shape[1]]
+            for _ in range(self._steps):
+                mujoco.mj_step(m, d)
+        return time.perf_counter() - t0

@@ -1,0 +1,206 @@
+"""The training loop, generic over the Simulator contract: batches, noise, named losses, resume.
+
+Each epoch is one pass over all (trajectory, frame) training pairs in an order drawn from a
+generator seeded by ``(seed, epoch)``; each batch is perturbed by the model's own noise
+recipe (:meth:`~mdgs.models.base.Simulator.perturb`, its torch generator seeded from the same
+stream), its named losses (:meth:`~mdgs.models.base.Simulator.losses`) are summed with the
+model's weights, and the model's optimiser steps. After every epoch the one-step validation
+error (:meth:`~mdgs.models.base.Simulator.validation_error`) drives the model's scheduler, and
+the checkpoint, metrics and step log are written atomically (:mod:`mdgs.runs`).
+
+Running the same ``mdgs train`` command again resumes from the last finished epoch; since the
+random stream of epoch ``e`` depends only on ``(seed, e)``, a resumed run continues exactly as
+an uninterrupted one would (up to floating-point nondeterminism of the device).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from mdgs.data.schema import DatasetError
+from mdgs.data.split import SplitData, load_splits
+from mdgs.models import ModelError, batch_of, get_model, one_step_error
+from mdgs.runs import RunError, atomic_json, read_checkpoint, resolve_device, write_checkpoint
+
+__all__ = ["TrainConfig", "TrainingError", "train"]
+
+
+class TrainingError(RunError):
+    """Training that cannot go on (a diverged loss); the message says what to change."""
+
+
+@dataclass
+class TrainConfig:
+    """Training run settings; every default documented here.
+
+    Attributes
+    ----------
+    data : folder with ``train.h5`` and ``valid.h5`` (``mdgs generate`` output).
+    out : run folder (:mod:`mdgs.runs`).
+    model_name : a key of :data:`mdgs.models.MODELS` (a learned model).
+    epochs : passes over all (trajectory, frame) training pairs.
+    batch_size : graphs per optimisation step.
+    lr : learning rate of the model's optimiser (MDGS, B.2: Adam 1e-3).
+    seed : seeds parameter initialisation, batch order and noise.
+    device : "auto" (CUDA when present), "cpu" or "cuda".
+    max_steps : cap on optimisation steps per epoch (0: no cap, a full pass).
+    valid_max_pairs : cap on validation pairs per epoch (0: all; an even subsample otherwise).
+    log_every : steps between entries of ``steps.json``.
+    model : the model's config (``MODELS[model_name].Config``); ``None``: its defaults.
+        Settings the model takes from data are filled by its ``resolve_config``.
+    """
+
+    data: str = "data"
+    out: str = "runs/mdgs"
+    model_name: str = "mdgs"
+    epochs: int = 20
+    batch_size: int = 32
+    lr: float = 1e-3
+    seed: int = 0
+    device: str = "auto"
+    max_steps: int = 0
+    valid_max_pairs: int = 0
+    log_every: int = 10
+    model: Any = None
+
+    def __post_init__(self):
+        for name, lo in (("epochs", 1), ("batch_size", 1), ("max_steps", 0), ("valid_max_pairs", 0), ("log_every", 1)):
+            val = getattr(self, name)
+            if not isinstance(val, int) or val < lo:
+                raise RunError(f"--{name.replace('_', '-')} {val} must be an integer of at least {lo}")
+        if not (isinstance(self.lr, float | int) and np.isfinite(self.lr) and self.lr > 0):
+            raise RunError(f"--lr {self.lr} must be a positive number")
+        if self.seed < 0:
+            raise RunError(f"--seed {self.seed} must be at least 0")
+
+
+def _fingerprint(cfg: TrainConfig, model_cfg: dict) -> dict:
+    """The settings that must agree for a resume (not epochs, step caps or device: a run may be extended)."""
+    d = asdict(cfg) | {"model": model_cfg}
+    for k in ("data", "out", "epochs", "device", "log_every", "max_steps", "valid_max_pairs"):
+        d.pop(k)
+    return d
+
+
+def _load_splits(cfg: TrainConfig, splits: dict | None) -> tuple[SplitData, SplitData]:
+    if splits is None:
+        splits = load_splits(cfg.data, ("train", "valid"))
+    tr, va = splits["train"], splits["valid"]
+    if tr.identity()["mjcf_sha256"] != va.identity()["mjcf_sha256"]:
+        raise DatasetError(f"{va.path} is of another scene than {tr.path}; use the three files of one `mdgs generate` run")
+    return tr, va
+
+
+def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, splits: dict | None = None) -> dict:
+    """Train (or resume) the run ``cfg.out``; returns the last epoch's metrics.
+
+    ``progress(event)`` is called with ``{"kind": "start"|"step"|"epoch", ...}``.
+    ``splits`` (``{"train": SplitData, "valid": SplitData}``) bypasses the files.
+    Raises :class:`~mdgs.runs.RunError`, :class:`~mdgs.models.ModelError` or
+    :class:`~mdgs.data.schema.DatasetError` for user errors, before anything is written.
+    """
+    progress = progress or (lambda e: None)
+    out = Path(cfg.out)
+    cls = get_model(cfg.model_name)
+    if not cls.learned:
+        raise ModelError(f"model {cfg.model_name!r} is a non-learned reference with nothing to train; "
+                         f"evaluate it directly with `mdgs evaluate --model {cfg.model_name} --data DIR`")
+    tr, va = _load_splits(cfg, splits)
+    dev = resolve_device(cfg.device)
+    mcfg = cls.resolve_config(cfg.model if cfg.model is not None else cls.Config(), tr)
+    model_dict = dict(asdict(mcfg))
+    resolved = {**asdict(cfg), "model": model_dict, "device": str(dev), "data_identity": tr.identity(),
+                "frame_dt_s": tr.frame_dt, "train_pairs": int(len(tr.pairs()))}
+    ckpt_path = out / "checkpoint.pt"
+    state = read_checkpoint(ckpt_path, dev) if ckpt_path.exists() else None
+    fp = _fingerprint(cfg, model_dict)
+    if state is not None:
+        if state["format"] < 2:
+            raise RunError(f"{ckpt_path} was written by an mdgs version before the model registry and cannot be "
+                           "resumed; it still evaluates with `mdgs evaluate`; choose another --out to train anew")
+        if state["data_identity"]["mjcf_sha256"] != tr.identity()["mjcf_sha256"]:
+            raise RunError(f"{out} holds a run trained on scene {state['data_identity']['scene']!r}, not on "
+                           f"{tr.identity()['scene']!r} from {cfg.data}; choose another --out or delete {ckpt_path}")
+        if state["train_fingerprint"] != fp:
+            old = state["train_fingerprint"]
+            diff = sorted(k for k in fp if old.get(k) != fp[k])
+            diff += sorted(f"model.{k}" for k in fp["model"] if old.get("model", {}).get(k) != fp["model"][k])
+            raise RunError(f"{out} holds a run with other settings ({', '.join(x for x in diff if x != 'model')} "
+                           f"differ); rerun with the settings in {out / 'config.json'}, choose another --out, "
+                           f"or delete {ckpt_path}")
+        if state["epoch"] + 1 >= cfg.epochs:
+            progress({"kind": "done", "epoch": state["epoch"], "epochs": cfg.epochs})
+            return {}
+    torch.manual_seed(cfg.seed)
+    model = cls(mcfg)
+    model.bind(tr)
+    model.fit(tr)
+    model = model.to(dev)
+    opt, sched, when = model.optimizer(cfg.lr)
+    history, steps_log, start = [], [], 0
+    if state is not None:
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["opt"])
+        sched.load_state_dict(state["sched"])
+        history, steps_log, start = state["history"], state["steps"], state["epoch"] + 1
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_json(resolved, out / "config.json")
+    weights = model.loss_weights()
+    pairs_all = tr.pairs(model.history)
+    n_steps = max(1, len(pairs_all) // cfg.batch_size)
+    if cfg.max_steps:
+        n_steps = min(n_steps, cfg.max_steps)
+    progress({"kind": "start", "epoch": start, "epochs": cfg.epochs, "steps": n_steps, "device": str(dev),
+              "model": cls.name})
+    for epoch in range(start, cfg.epochs):
+        t0 = time.perf_counter()
+        rng = np.random.default_rng([cfg.seed, epoch])  # same stream whether resumed or not
+        gen = torch.Generator(device=dev).manual_seed(int(rng.integers(2**62)))
+        pairs = rng.permutation(pairs_all)
+        model.train()
+        tot: dict[str, float] = {}
+        for s in range(n_steps):
+            batch = batch_of(tr, pairs[s * cfg.batch_size:(s + 1) * cfg.batch_size], dev, model.history)
+            losses = model.losses(model.perturb(batch, gen))
+            loss = None
+            for k, w in weights.items():
+                term = losses[k] if w == 1.0 else w * losses[k]
+                loss = term if loss is None else loss + term
+            if not torch.isfinite(loss):
+                raise TrainingError(f"training diverged at epoch {epoch}, step {s} (loss {loss.item()}); "
+                                    f"lower --lr or the noise, or delete {ckpt_path} to restart from scratch")
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            if when == "step":
+                sched.step()
+            vals = {k: v.item() for k, v in losses.items()}
+            for k, v in vals.items():
+                tot[k] = tot.get(k, 0.0) + v
+            if s % cfg.log_every == 0 or s == n_steps - 1:
+                steps_log.append({"epoch": epoch, "step": s, "loss": loss.item(), **{f"l_{k}": v for k, v in vals.items()}})
+            progress({"kind": "step", "epoch": epoch, "step": s + 1, "steps": n_steps, "loss": loss.item(),
+                      "losses": vals})
+        train_s = time.perf_counter() - t0
+        val = one_step_error(model, va, dev, max(cfg.batch_size, 64), cfg.valid_max_pairs)
+        if when == "epoch":
+            sched.step(val)
+        rec = {"epoch": epoch, **{f"train_{k}": v / n_steps for k, v in tot.items()},
+               "valid_mse": val, "lr": opt.param_groups[0]["lr"], "steps": n_steps,
+               "train_seconds": train_s, "seconds": time.perf_counter() - t0}
+        history.append(rec)
+        write_checkpoint(ckpt_path, {
+            "model_name": cls.name, "model": model.state_dict(), "opt": opt.state_dict(),
+            "sched": sched.state_dict(), "epoch": epoch, "config": resolved, "train_fingerprint": fp,
+            "data_identity": tr.identity(), "has_contact": tr.has_contact, "history": history, "steps": steps_log})
+        atomic_json(history, out / "metrics.json")
+        atomic_json(steps_log, out / "steps.json")
+        progress({"kind": "epoch", **rec})
+    return history[-1] if history else {}
