@@ -17,12 +17,16 @@ def train_cmd(
     data: Path = typer.Option(..., "--data", help="Folder with train.h5 and valid.h5 (`mdgs generate` output)."),
     out: Path = typer.Option(..., "--out", help="Run folder; rerunning the same command resumes it."),
     model: str = typer.Option("mdgs", "--model", help=_MODEL_HELP),
-    structure: bool = typer.Option(True, "--structure/--no-structure", help="MDGS: structural constraint module (B.1.3)."),
-    bound: str = typer.Option("paper", "--bound", help="MDGS: bound of L_cst, paper (Eq. 12) or corrected."),
-    integrator: str = typer.Option("rigid", "--integrator",
-                                   help="MDGS: rigid (per-object twist, exact rigid motion), twist (g read in twist "
-                                        "space), euler or direct (Eq. 9 literally); see docs/ambiguities.md."),
-    noise: str = typer.Option("auto", "--noise", help="MDGS: auto, none, abs:SIGMA or inc:FRACTION (see docs/training.md)."),
+    structure: bool = typer.Option(None, "--structure/--no-structure", show_default=False,
+                                   help="MDGS: structural constraint module (B.1.3); on by default."),
+    bound: str = typer.Option(None, "--bound", help="MDGS: bound of L_cst, paper (Eq. 12, default) or corrected."),
+    integrator: str = typer.Option(None, "--integrator",
+                                   help="MDGS: rigid (default; per-object twist, exact rigid motion), twist (g read "
+                                        "in twist space), euler or direct (Eq. 9 literally); see docs/ambiguities.md."),
+    noise: str = typer.Option(None, "--noise", help="Training noise of the model, e.g. MDGS: auto (default), none, "
+                                                   "abs:SIGMA or inc:FRACTION (see docs/training.md)."),
+    settings: list[str] = typer.Option(None, "--set", metavar="KEY=VALUE",
+                                       help="Any field of the model's config (e.g. hidden=100); repeatable."),
     epochs: int = typer.Option(20, "--epochs", help="Total epochs (a resumed run stops at this count)."),
     batch_size: int = typer.Option(32, "--batch-size", help="Graphs per step."),
     lr: float = typer.Option(1e-3, "--lr", help="Learning rate (MDGS, B.2: Adam 1e-3)."),
@@ -33,22 +37,28 @@ def train_cmd(
 ) -> None:
     """Train a model on a generated dataset (MDGS: Adam, plateau scheduler, training noise; Appendix B.2)."""
     from mdgs.data.schema import DatasetError
-    from mdgs.models import MODELS, ModelError, get_model
+    from mdgs.models import ModelError, get_model
     from mdgs.runs import RunError
     from mdgs.train import TrainConfig
 
     try:
         cls = get_model(model)
         opts = {"structure": structure, "bound": bound, "integrator": integrator, "noise": noise}
+        opts = {k: v for k, v in opts.items() if v is not None}
+        opts.update(parse_settings(cls.Config, settings or []))
         known = set(cls.Config.__dataclass_fields__)
-        mcfg = cls.Config(**{k: v for k, v in opts.items() if k in known})
+        unknown = sorted(set(opts) - known)
+        if unknown:
+            flag = unknown[0] if unknown[0] in ("structure", "bound", "integrator", "noise") else f"--set {unknown[0]}"
+            fail(f"model {model!r} has no setting {flag.lstrip('-')}; its settings are {', '.join(sorted(known))}")
+        mcfg = cls.Config(**opts)
         cfg = TrainConfig(data=str(data), out=str(out), model_name=model, epochs=epochs, batch_size=batch_size,
                           lr=lr, seed=seed, max_steps=max_steps, valid_max_pairs=valid_max_pairs, device=device,
                           model=mcfg)
     except ValueError as e:
         fail(f"--model {model}: {e}")
     except (ModelError, RunError) as e:
-        fail(str(e) + ("" if model in MODELS else ""))
+        fail(str(e))
     try:
         last = _train_with_progress(cfg)
     except (DatasetError, RunError, ModelError) as e:
@@ -61,6 +71,37 @@ def train_cmd(
         typer.echo(f"{out}: epoch {last['epoch'] + 1}/{epochs}, train {losses}, valid one-step MSE {last['valid_mse']:.4g}")
     else:
         typer.echo(f"{out}: already trained for {epochs} epochs; raise --epochs to continue")
+
+
+def parse_settings(config_cls, items: list[str]) -> dict:
+    """``["hidden=100", "structure=false"]`` -> ``{"hidden": 100, "structure": False}`` typed by the config's fields."""
+    import dataclasses
+
+    types = {f.name: f.type for f in dataclasses.fields(config_cls)}
+    out = {}
+    for item in items:
+        key, eq, text = item.partition("=")
+        key = key.strip().replace("-", "_")
+        if not eq or not key:
+            fail(f"--set {item!r} is not of the form KEY=VALUE (for example hidden=100)")
+        if key not in types:
+            fail(f"--set {key}: the model has no such setting; its settings are {', '.join(types)}")
+        t = str(types[key])
+        try:
+            if t.startswith("bool"):
+                if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                    raise ValueError(text)
+                val = text.lower() in ("true", "1", "yes")
+            elif t.startswith("int"):
+                val = int(text)
+            elif t.startswith("float"):
+                val = None if (text.lower() == "none" and "None" in t) else float(text)
+            else:
+                val = text
+        except ValueError:
+            fail(f"--set {item!r}: {text!r} is not a valid {t} value for {key}")
+        out[key] = val
+    return out
 
 
 def _train_with_progress(cfg) -> dict:
