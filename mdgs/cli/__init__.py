@@ -1,4 +1,4 @@
-"""The ``mdgs`` command line (typer): validate, generate, train, evaluate.
+"""The ``mdgs`` command line (typer): validate, generate, train, evaluate, study.
 
 This package is the only place that imports typer and rich, and the only place where
 :mod:`mdgs` and :mod:`validation` meet. Exit codes of every command: 0 success (for
@@ -107,5 +107,6 @@ def progress_bar(*extra_columns):
 # train/evaluate run, so `mdgs validate` and `mdgs generate` do not pay for it)
 from mdgs.cli import evaluate as _evaluate  # noqa: E402,F401
 from mdgs.cli import generate as _generate  # noqa: E402,F401
+from mdgs.cli import study as _study  # noqa: E402,F401
 from mdgs.cli import train as _train  # noqa: E402,F401
 from mdgs.cli import validate as _validate  # noqa: E402,F401

@@ -64,6 +64,10 @@ class GenerateConfig:
     partition: PartitionParams = field(default_factory=PartitionParams)
     batch: int | None = None
     """Trajectories per part file (the preset's if None)."""
+    n_frames: int | None = None
+    """Frames per trajectory (the preset's 110 if None); e.g. 1100 for a stability test set."""
+    splits: tuple[str, ...] | None = None
+    """Only these splits (e.g. ``("test",)`` for a long test set); the scene's splits if None."""
 
 
 @dataclass(frozen=True)
@@ -91,11 +95,16 @@ def _content(cfg: GenerateConfig, loaded: LoadedScene) -> dict:
     """What determines the bits of the output (hashed into config_sha256)."""
     spec = loaded.spec
     preset = PRESETS[cfg.preset]
-    counts = (
-        split_counts(cfg.n_traj, spec.splits)
-        if cfg.n_traj is not None
-        else preset.counts(spec.splits)
-    )
+    splits = spec.splits
+    if cfg.splits is not None:
+        unknown = [s for s in cfg.splits if s not in spec.splits]
+        if unknown or not cfg.splits:
+            raise ValueError(f"splits {', '.join(cfg.splits) or '(none)'}: scene {spec.name} has splits "
+                             f"{', '.join(spec.splits)}")
+        splits = tuple(s for s in spec.splits if s in cfg.splits)
+    if cfg.n_frames is not None and cfg.n_frames < 2:
+        raise ValueError(f"--frames {cfg.n_frames} must be at least 2")
+    counts = split_counts(cfg.n_traj, splits) if cfg.n_traj is not None else preset.counts(splits)
     return {
         "schema_version": SCHEMA_VERSION,
         "scene": spec.name,
@@ -103,7 +112,7 @@ def _content(cfg: GenerateConfig, loaded: LoadedScene) -> dict:
         "scene_params": json.loads(json.dumps(spec.params(), default=list)),
         "partition": cfg.partition.as_dict(),
         "seed": int(cfg.seed),
-        "n_frames": preset.n_frames,
+        "n_frames": int(cfg.n_frames or preset.n_frames),
         "counts": counts,
         "batch": int(cfg.batch or preset.batch),
         "mujoco": __import__("mujoco").__version__,

@@ -182,6 +182,7 @@ class Simulator(nn.Module):
 def one_step_error(model: Simulator, d: SplitData, dev, batch_size: int = 64, max_pairs: int = 0) -> float:
     """Mean :meth:`~mdgs.models.base.Simulator.validation_error` over the pairs of a split (clean inputs)."""
     model.eval()
+    model.bind(d)
     pairs = d.pairs(model.history)
     if max_pairs and len(pairs) > max_pairs:
         pairs = pairs[np.linspace(0, len(pairs) - 1, max_pairs).astype(int)]

@@ -67,10 +67,17 @@ class MuJoCoConfig:
     """
 
     dt_factor: int = 1
+    velocity_noise: float = 0.0
+    """Relative perturbation of the initial velocities: ``qvel * (1 + velocity_noise * N(0, 1))``
+    per coordinate at the rollout's first frame (the sensitivity floor of a study; 0: none)."""
+    noise_seed: int = 0
+    """Seed of that perturbation (with the trajectory index)."""
 
     def __post_init__(self):
         if int(self.dt_factor) < 1:
             raise ValueError(f"dt_factor must be a positive integer, got {self.dt_factor!r}")
+        if self.velocity_noise < 0:
+            raise ValueError(f"velocity_noise must be >= 0, got {self.velocity_noise!r}")
 
 
 class MuJoCoReference(Simulator):
@@ -112,9 +119,21 @@ class MuJoCoReference(Simulator):
     def initial_state(self, split: SplitData, traj: np.ndarray, frame: int) -> State:
         base = super().initial_state(split, traj, frame)
         dev = self.device
-        ex = {k: torch.from_numpy(np.asarray(getattr(split, k)[traj, frame], np.float64)).to(dev)
-              for k in ("qpos", "qvel", "act")}
-        return State(base.x, base.v, ex)
+        ex = {k: np.array(getattr(split, k)[traj, frame], np.float64) for k in ("qpos", "qvel", "act")}
+        if self.config.velocity_noise > 0 and frame == 0:
+            for row, i in enumerate(np.asarray(traj)):
+                rng = np.random.default_rng([self.config.noise_seed, int(i)])
+                ex["qvel"][row] *= 1.0 + self.config.velocity_noise * rng.standard_normal(ex["qvel"].shape[1])
+            d = self._data
+            xs, vs = [], []
+            for row in range(len(ex["qpos"])):
+                d.qpos[:], d.qvel[:] = ex["qpos"][row], ex["qvel"][row]
+                x, v = self._nodes(d)
+                xs.append(x)
+                vs.append(v)
+            base = State(torch.from_numpy(np.stack(xs)).to(dev, base.x.dtype),
+                         torch.from_numpy(np.stack(vs)).to(dev, base.v.dtype))
+        return State(base.x, base.v, {k: torch.from_numpy(a).to(dev) for k, a in ex.items()})
 
     def _nodes(self, d: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """Node positions and velocities [N, 3] of the state in ``d`` (runs MuJoCo's kinematics)."""

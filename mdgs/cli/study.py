@@ -1,0 +1,86 @@
+"""``mdgs study``: run a study file's grid resumably into results.jsonl, then draw its tables and charts."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from mdgs.cli import app, fail, progress_bar
+
+
+def _share(text: str) -> tuple[int, int]:
+    try:
+        i, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        fail(f"--cells '{text}' is not of the form I/N (for example 0/4)")
+    if not (n >= 1 and 0 <= i < n):
+        fail(f"--cells {text} is out of range; use I/N with 0 <= I < N")
+    return i, n
+
+
+@app.command("study")
+def study_cmd(
+    study_file: Path = typer.Argument(None, help="Study file (TOML), e.g. studies/tiny.toml.", show_default=False),
+    out: Path = typer.Option(None, "--out", help="Output folder (rerun the same command to resume)."),
+    cells: str = typer.Option("0/1", "--cells", help="Run only share I of N of the cells (a job array): I/N."),
+    report_only: Path = typer.Option(None, "--report", metavar="DIR",
+                                     help="Only rebuild the tables and charts of DIR from its results files."),
+    no_report: bool = typer.Option(False, "--no-report", help="Do not draw tables and charts after running."),
+) -> None:
+    """Run a grid of (scene, model, seed) cells: Tables 1-4, speed-accuracy chart, stability test."""
+    from mdgs.data.schema import DatasetError
+    from mdgs.models import ModelError
+    from mdgs.runs import RunError
+    from mdgs.study import StudyError, load_study, report, run_study
+
+    if report_only is not None:
+        if study_file is not None:
+            fail("give either a study file (to run) or --report DIR (to redraw), not both")
+        try:
+            files = report(report_only)
+        except StudyError as e:
+            fail(str(e))
+        typer.echo(f"{report_only}: " + ", ".join(files))
+        return
+    if study_file is None or out is None:
+        fail("give a study file and --out DIR (or --report DIR to redraw the tables and charts)")
+    share = _share(cells)
+    try:
+        study = load_study(study_file)
+    except StudyError as e:
+        fail(str(e))
+    progress, console = progress_bar()
+    try:
+        with progress as bar:
+            overall = bar.add_task("cells", total=None)
+            inner = bar.add_task("", total=None, visible=False)
+
+            def on(e: dict) -> None:
+                if e["kind"] == "plan":
+                    bar.update(overall, total=e["cells"], completed=e["cells"] - e["todo"])
+                    console.print(f"study {study.name}: {e['cells']} cells in this share, {e['todo']} to run")
+                elif e["kind"] == "cell":
+                    if e["index"]:
+                        bar.advance(overall)
+                    bar.update(inner, description=e["label"], total=None, completed=0, visible=True)
+                elif e["kind"] == "train" and e.get("kind") == "train" and "steps" in e and "step" in e:
+                    bar.update(inner, description=f"  epoch {e['epoch'] + 1}", total=e["steps"], completed=e["step"])
+                elif e["kind"] == "evaluate":
+                    bar.update(inner, description=f"  evaluating on {e['set']}", total=None)
+
+            res = run_study(study, out, share, progress=on)
+            if res["ran"]:
+                bar.advance(overall)
+    except (StudyError, DatasetError, RunError, ModelError, ValueError) as e:
+        fail(str(e))
+    except KeyboardInterrupt:
+        typer.echo(f"interrupted; rerun the same command to resume {out} (finished cells are kept)", err=True)
+        raise typer.Exit(130) from None
+    typer.echo(f"{out}: {res['done'] + res['ran']}/{res['cells']} cells finished ({res['ran']} run now)")
+    if not no_report:
+        try:
+            files = report(out)
+        except StudyError as e:
+            fail(str(e))
+        typer.echo(f"{out}: " + ", ".join(files))

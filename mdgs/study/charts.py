@@ -1,0 +1,240 @@
+"""The study's charts, drawn from ``results.jsonl`` alone: speed against accuracy, stability, resolution.
+
+- ``speed_accuracy.png`` / ``.svg``: per scene, position MSE at t = 110 (log) against the cost of a
+  simulated frame of one trajectory (ms, log); one point per model (mean over seeds, error bars
+  = std over seeds), MuJoCo at its timestep factors as a connected curve, the constant-twist
+  reference, the sensitivity floor as a band, the Pareto front (no other point both cheaper
+  and more accurate) circled. A model that failed on some trajectory at t = 110 is drawn hollow
+  with its mean over the survivors and says so in the legend.
+- ``stability.png``: per scene, the fraction of long test trajectories still within the failure
+  threshold against the rollout length, then the energy error and the joint separation of the
+  surviving trajectories (means over seeds).
+- ``resolution.png``: MDGS error at t = 40 and cost against the element resolution.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from mdgs.runs import atomic_savefig
+
+__all__ = ["draw_charts"]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _scenes(lines):
+    out = []
+    for ln in lines:
+        if ln["scene"] not in out:
+            out.append(ln["scene"])
+    return out
+
+
+def _run_mean(ln, set_name="test", t=110):
+    vals = [v for v in ln["sets"][set_name][f"pos_mse_t{t}"] if v is not None]
+    return (float(np.mean(vals)) if vals else None), len(vals) < ln["sets"][set_name]["trajectories"]
+
+
+def _points(lines, scene):
+    """{label: (kind, cost mean, cost std, err mean, err std, any failed)} for one scene."""
+    groups: dict = {}
+    for ln in lines:
+        if ln["scene"] == scene and ln["kind"] in ("learned", "reference"):
+            groups.setdefault(ln["label"], []).append(ln)
+    pts = {}
+    for label, lns in groups.items():
+        errs, failed = [], False
+        for ln in lns:
+            m, f = _run_mean(ln)
+            failed |= f or m is None
+            if m is not None:
+                errs.append(m)
+        costs = [ln["cost"]["single"]["ms_per_frame"] for ln in lns]
+        if not errs:  # failed on every trajectory by t = 110 in every seed: drawn at the top edge
+            pts[label] = (lns[0]["kind"], float(np.mean(costs)), float(np.std(costs)), None, 0.0, True)
+            continue
+        pts[label] = (lns[0]["kind"], float(np.mean(costs)), float(np.std(costs)), float(np.mean(errs)),
+                      float(np.std(errs, ddof=1)) if len(errs) > 1 else 0.0, failed)
+    return pts
+
+
+def _pareto(pts) -> set:
+    front = set()
+    for a, (_, ca, _, ea, _, fa) in pts.items():
+        if fa or ea is None:
+            continue
+        if not any(eb is not None and cb <= ca and eb <= ea and (cb < ca or eb < ea) and not fb
+                   for b, (_, cb, _, eb, _, fb) in pts.items() if b != a):
+            front.add(a)
+    return front
+
+
+def _floor(lines, scene, t=110):
+    vals = [_run_mean(ln, "test", t)[0] for ln in lines if ln["scene"] == scene and ln["kind"] == "sensitivity"]
+    vals = [v for v in vals if v is not None]
+    return (float(np.mean(vals)), float(np.std(vals))) if vals else None
+
+
+def _grid(n):
+    cols = min(n, 3)
+    return math.ceil(n / cols), cols
+
+
+def speed_accuracy(lines, path: Path) -> None:
+    plt = _plt()
+    scenes = _scenes(lines)
+    rows, cols = _grid(len(scenes))
+    fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 4.2 * rows), squeeze=False)
+    for ax, scene in zip(axes.flat, scenes, strict=False):
+        pts = _points(lines, scene)
+        front = _pareto(pts)
+        mj = sorted(((lbl, p) for lbl, p in pts.items() if lbl.startswith("mujoco dt x")),
+                    key=lambda kv: int(kv[0].split("x")[-1]))
+        if mj:
+            ax.plot([p[1] for _, p in mj], [p[3] for _, p in mj], "-o", color="0.35", ms=4, label="MuJoCo, dt x1 ... x"
+                    + mj[-1][0].split("x")[-1])
+            for lbl, p in mj:
+                ax.annotate(lbl.split(" ")[-1], (p[1], p[3]), fontsize=6, color="0.35", xytext=(3, 3),
+                            textcoords="offset points")
+        k = 0
+        for lbl, (kind, c, cs, e, es, failed) in pts.items():
+            if lbl.startswith("mujoco dt x"):
+                continue
+            if e is None:
+                col = f"C{k}"
+                k += 1
+                ax.plot([c], [1], marker="x", ms=9, color=col, transform=ax.get_xaxis_transform(), clip_on=False,
+                        label=f"{lbl} (failed on every trajectory by t = 110)")
+                continue
+            if kind == "reference":
+                ax.plot([c], [e], "s", color="0.6", label=lbl)
+                continue
+            col = f"C{k}"
+            k += 1
+            ax.errorbar([c], [e], xerr=[cs], yerr=[es], fmt="o", color=col, mfc="none" if failed else col,
+                        label=lbl + (" (failed on some)" if failed else ""))
+        for lbl in front:
+            ax.plot([pts[lbl][1]], [pts[lbl][3]], "o", ms=14, mfc="none", mec="k", lw=0.8)
+        fl = _floor(lines, scene)
+        if fl is not None:
+            ax.axhspan(max(fl[0] - fl[1], fl[0] * 0.5), fl[0] + fl[1], color="orange", alpha=0.2,
+                       label="sensitivity floor")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(scene, fontsize=9)
+        ax.set_xlabel("cost: ms per simulated frame, 1 trajectory (log)")
+        ax.set_ylabel("position MSE at t = 110 (m$^2$, log)")
+        ax.plot([], [], "o", ms=10, mfc="none", mec="k", label="Pareto front")
+        ax.legend(fontsize=6)
+    for ax in list(axes.flat)[len(scenes):]:
+        ax.axis("off")
+    fig.tight_layout()
+    atomic_savefig(fig, path.with_suffix(".png"), dpi=110)
+    atomic_savefig(fig, path.with_suffix(".svg"))
+    plt.close(fig)
+
+
+def _curve_mean(lns, key):
+    arrs = [np.array([np.nan if v is None else v for v in ln["sets"]["long"][key]], float) for ln in lns]
+    with np.errstate(invalid="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return np.nanmean(np.stack(arrs), 0)
+
+
+def stability(lines, path: Path) -> bool:
+    plt = _plt()
+    scenes = [s for s in _scenes(lines) if any(ln["scene"] == s and "long" in ln["sets"] for ln in lines)]
+    if not scenes:
+        return False
+    fig, axes = plt.subplots(len(scenes), 3, figsize=(15, 3.6 * len(scenes)), squeeze=False)
+    for row, scene in zip(axes, scenes, strict=True):
+        groups: dict = {}
+        for ln in lines:
+            if ln["scene"] == scene and "long" in ln["sets"]:
+                groups.setdefault(ln["label"], []).append(ln)
+        n_ref = 0
+        for k, (label, lns) in enumerate(groups.items()):
+            frames = np.array(lns[0]["sets"]["long"]["curve_frames"]) + 1
+            ref = lns[0]["kind"] != "learned"
+            if ref:
+                style = dict(color=f"{0.15 + 0.2 * (n_ref % 4):.2f}", ls=("--", ":", "-.", (0, (5, 1)))[n_ref % 4], lw=1.2)
+                n_ref += 1
+            else:
+                style = dict(color=f"C{k}", ls="-", lw=1.5)
+            row[0].plot(frames, _curve_mean(lns, "fraction_within"), label=label, **style)
+            row[1].plot(frames, np.maximum(_curve_mean(lns, "energy_error_J"), 1e-12), **style)
+            row[2].plot(frames, np.maximum(1e3 * _curve_mean(lns, "joint_separation_m"), 1e-9), **style)
+        thr = lns[0]["sets"]["long"]["failure_threshold_m2"]
+        row[0].set_title(f"{scene}: within the failure threshold ({thr:.2g} m$^2$)", fontsize=9)
+        row[0].set_ylabel("fraction of trajectories")
+        row[0].set_ylim(-0.02, 1.02)
+        row[1].set_title("energy error of survivors (J)", fontsize=9)
+        row[2].set_title("joint separation of survivors (mm)", fontsize=9)
+        for ax in row:
+            ax.set_xlabel("time step t")
+            ax.axvline(110, color="0.7", ls=":", lw=0.8)
+        for ax in row[1:]:
+            ax.set_yscale("log")
+        row[0].legend(fontsize=6)
+    fig.tight_layout()
+    atomic_savefig(fig, path, dpi=100)
+    plt.close(fig)
+    return True
+
+
+def resolution(lines, path: Path) -> bool:
+    res = [ln for ln in lines if ln["kind"] == "resolution"]
+    if not res:
+        return False
+    plt = _plt()
+    model = res[0]["model"]
+    use = res + [ln for ln in lines if ln["kind"] == "learned" and ln["model"] == model and ln["label"] == model]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    for k, scene in enumerate(_scenes(use)):
+        by = {}
+        for ln in use:
+            if ln["scene"] == scene:
+                by.setdefault(ln["refine"], []).append(ln)
+        rs = sorted(by)
+        err = [np.mean([m for m in (_run_mean(ln, "test", 40)[0] for ln in by[r]) if m is not None] or [np.nan]) for r in rs]
+        cost = [np.mean([ln["cost"]["single"]["ms_per_frame"] for ln in by[r]]) for r in rs]
+        axes[0].plot(rs, err, "-o", color=f"C{k}", label=scene)
+        axes[1].plot(rs, cost, "-o", color=f"C{k}", label=scene)
+    axes[0].set_ylabel("position MSE at t = 40 (m$^2$)")
+    axes[1].set_ylabel("ms per frame, 1 trajectory")
+    for ax in axes:
+        ax.set_xlabel("partition refinement (1: default, coarsest adequate)")
+        ax.set_yscale("log")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    atomic_savefig(fig, path, dpi=100)
+    plt.close(fig)
+    return True
+
+
+def draw_charts(lines: list[dict], out: Path) -> list[str]:
+    """Draw every chart the results support into ``out``; returns the file names written."""
+    out = Path(out)
+    files = []
+    if any(ln["kind"] in ("learned", "reference") for ln in lines):
+        speed_accuracy(lines, out / "speed_accuracy.png")
+        files += ["speed_accuracy.png", "speed_accuracy.svg"]
+    if stability(lines, out / "stability.png"):
+        files.append("stability.png")
+    if resolution(lines, out / "resolution.png"):
+        files.append("resolution.png")
+    return files

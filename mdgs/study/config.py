@@ -1,0 +1,267 @@
+"""Study files (TOML): the grid of scenes, models, seeds and budgets that ``mdgs study`` runs.
+
+A study file has these tables (every key optional unless marked; defaults in the dataclasses)::
+
+    [study]
+    name = "small"                      # required; an output folder holds one study
+    preset = "small"                    # data preset of every scene (tiny, small, paper)
+    seeds = [0, 1, 2]
+    device = "cpu"
+    long_frames = 1100                  # stability test: frames of the long test trajectories (0: none)
+    long_trajectories = 10              # how many long test trajectories
+    failure_factor = 1.0                # failure: position MSE > factor x position variance of the split
+    sensitivity = 1e-3                  # sensitivity floor: relative perturbation of initial velocities
+    sensitivity_seeds = [0, 1, 2]
+
+    [budget]                            # the same for every learned model
+    epochs = 30
+    max_steps = 0                       # cap on steps per epoch (0: a full pass)
+    batch_size = 32
+    valid_max_pairs = 0
+
+    [[scenes]]
+    name = "cubli-triple"               # a built-in scene, or
+    # mjcf = "examples/user.xml"        # a user's MJCF file (relative to the study file)
+    variants = ["cubli-triple-intense"] # test-only variants the models are also evaluated on (Table 3)
+
+    [[models]]
+    name = "mdgs"                       # a key of mdgs.models.MODELS
+    label = "mdgs"                      # row name (default: name)
+    set = { hidden = 200 }              # config fields of the model
+
+    [references]
+    mujoco_dt_factors = [1, 2, 5, 10, 20]
+
+    [resolution]                        # MDGS error and cost against the element resolution
+    model = "mdgs"
+    refine = [1, 2]
+    seeds = [0]
+
+:func:`load_study` checks all of it and raises :class:`StudyError` naming the key and the fix.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+__all__ = ["StudyError", "SceneEntry", "ModelEntry", "Budget", "StudyConfig", "load_study"]
+
+
+class StudyError(Exception):
+    """A study file or output folder that cannot be used; the message names it and the fix."""
+
+
+@dataclass(frozen=True)
+class SceneEntry:
+    """One scene of the grid: a built-in scene (``name``) or a user's MJCF file (``mjcf``)."""
+
+    name: str
+    mjcf: str | None = None
+    substeps: int = 10
+    variants: tuple[str, ...] = ()
+
+    @property
+    def key(self) -> str:
+        return self.name
+
+
+@dataclass(frozen=True)
+class ModelEntry:
+    """One model row: a registry name, its row label and config settings."""
+
+    name: str
+    label: str
+    settings: tuple[tuple[str, object], ...] = ()
+
+    @property
+    def settings_dict(self) -> dict:
+        return dict(self.settings)
+
+
+@dataclass(frozen=True)
+class Budget:
+    """Training budget of every learned model (the same for all: an honest comparison)."""
+
+    epochs: int = 30
+    max_steps: int = 0
+    batch_size: int = 32
+    valid_max_pairs: int = 0
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """A parsed study file (see the module docstring for the meaning of each field)."""
+
+    name: str
+    path: str
+    preset: str = "small"
+    seeds: tuple[int, ...] = (0, 1, 2)
+    device: str = "cpu"
+    long_frames: int = 1100
+    long_trajectories: int = 10
+    failure_factor: float = 1.0
+    sensitivity: float = 1e-3
+    sensitivity_seeds: tuple[int, ...] = (0, 1, 2)
+    budget: Budget = field(default_factory=Budget)
+    scenes: tuple[SceneEntry, ...] = ()
+    models: tuple[ModelEntry, ...] = ()
+    mujoco_dt_factors: tuple[int, ...] = (1, 2, 5, 10, 20)
+    resolution_model: str = "mdgs"
+    resolution_refine: tuple[int, ...] = ()
+    resolution_seeds: tuple[int, ...] = (0,)
+
+    def fingerprint(self) -> str:
+        """Hash of everything that decides the results (not the file's path)."""
+        d = asdict(self)
+        d.pop("path")
+        return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+_TOP = {"study", "budget", "scenes", "models", "references", "resolution"}
+
+
+def _take(table: dict, key: str, kind, where: str, default=None, required: bool = False):
+    if key not in table:
+        if required:
+            raise StudyError(f"{where}: the key {key!r} is missing; add it (see `mdgs study --help`)")
+        return default
+    val = table[key]
+    ok = isinstance(val, kind) and not (kind in (int, float, (int, float)) and isinstance(val, bool))
+    if not ok:
+        name = kind.__name__ if isinstance(kind, type) else " or ".join(k.__name__ for k in kind)
+        raise StudyError(f"{where}: {key} = {val!r} should be of type {name}")
+    return val
+
+
+def _ints(table, key, where, default, lo=0) -> tuple[int, ...]:
+    vals = _take(table, key, list, where, list(default))
+    if not all(isinstance(v, int) and not isinstance(v, bool) and v >= lo for v in vals):
+        raise StudyError(f"{where}: {key} = {vals!r} should be a list of integers >= {lo}")
+    return tuple(vals)
+
+
+def _unknown(table: dict, known: set, where: str) -> None:
+    extra = sorted(set(table) - known)
+    if extra:
+        raise StudyError(f"{where}: unknown key {extra[0]!r}; known keys are {', '.join(sorted(known))}")
+
+
+def load_study(path: str | os.PathLike) -> StudyConfig:
+    """Parse and check a study file -> :class:`StudyConfig`; StudyError naming what is wrong."""
+    from mdgs.data.presets import PRESETS
+    from mdgs.models import MODELS
+    from mdgs.scenes import SCENES
+
+    path = Path(path)
+    if not path.is_file():
+        raise StudyError(f"study file {path} " + ("is a folder" if path.is_dir() else "does not exist")
+                         + "; pass a TOML file such as studies/tiny.toml")
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise StudyError(f"{path} is not valid TOML ({e})") from None
+    f = str(path)
+    _unknown(doc, _TOP, f)
+    st = _take(doc, "study", dict, f, required=True)
+    where = f"{f} [study]"
+    _unknown(st, {"name", "preset", "seeds", "device", "long_frames", "long_trajectories", "failure_factor",
+                  "sensitivity", "sensitivity_seeds"}, where)
+    name = _take(st, "name", str, where, required=True)
+    if not name.strip() or any(c in name for c in "/\\"):
+        raise StudyError(f"{where}: name {name!r} must be a non-empty word without slashes")
+    preset = _take(st, "preset", str, where, "small")
+    if preset not in PRESETS:
+        raise StudyError(f"{where}: preset {preset!r} is unknown; choose one of {', '.join(PRESETS)}")
+    seeds = _ints(st, "seeds", where, (0, 1, 2))
+    if not seeds:
+        raise StudyError(f"{where}: seeds is empty; give at least one seed")
+    device = _take(st, "device", str, where, "cpu")
+    if device not in ("auto", "cpu", "cuda"):
+        raise StudyError(f"{where}: device {device!r} is not one of auto, cpu, cuda")
+    long_frames = _take(st, "long_frames", int, where, 1100)
+    long_traj = _take(st, "long_trajectories", int, where, 10)
+    if long_frames and long_frames < 2 or long_traj < 1:
+        raise StudyError(f"{where}: long_frames must be 0 or >= 2 and long_trajectories >= 1")
+    failure = float(_take(st, "failure_factor", (int, float), where, 1.0))
+    sens = float(_take(st, "sensitivity", (int, float), where, 1e-3))
+    if failure <= 0 or sens < 0:
+        raise StudyError(f"{where}: failure_factor must be > 0 and sensitivity >= 0")
+    sens_seeds = _ints(st, "sensitivity_seeds", where, (0, 1, 2))
+
+    bt = _take(doc, "budget", dict, f, {})
+    where = f"{f} [budget]"
+    _unknown(bt, {"epochs", "max_steps", "batch_size", "valid_max_pairs"}, where)
+    budget = Budget(epochs=_take(bt, "epochs", int, where, 30), max_steps=_take(bt, "max_steps", int, where, 0),
+                    batch_size=_take(bt, "batch_size", int, where, 32),
+                    valid_max_pairs=_take(bt, "valid_max_pairs", int, where, 0))
+    if budget.epochs < 1 or budget.batch_size < 1 or budget.max_steps < 0 or budget.valid_max_pairs < 0:
+        raise StudyError(f"{where}: epochs and batch_size must be >= 1, max_steps and valid_max_pairs >= 0")
+
+    scenes = []
+    for k, sc in enumerate(_take(doc, "scenes", list, f, required=True)):
+        where = f"{f} [[scenes]] #{k + 1}"
+        if not isinstance(sc, dict):
+            raise StudyError(f"{where}: each scene is a table with name = ... or mjcf = ...")
+        _unknown(sc, {"name", "mjcf", "substeps", "variants"}, where)
+        mjcf = _take(sc, "mjcf", str, where)
+        if mjcf is not None:
+            mj = (path.parent / mjcf).resolve()
+            if not mj.is_file():
+                raise StudyError(f"{where}: MJCF file {mj} does not exist")
+            sname = _take(sc, "name", str, where, Path(mjcf).stem)
+            scenes.append(SceneEntry(sname, str(mj), _take(sc, "substeps", int, where, 10)))
+            continue
+        sname = _take(sc, "name", str, where, required=True)
+        if sname not in SCENES:
+            raise StudyError(f"{where}: scene {sname!r} is unknown; see `mdgs generate --list`")
+        variants = tuple(_take(sc, "variants", list, where, []))
+        for v in variants:
+            if v not in SCENES or SCENES[v].variant_of != sname:
+                raise StudyError(f"{where}: {v!r} is not a test variant of {sname!r}")
+        scenes.append(SceneEntry(sname, None, 10, variants))
+    if not scenes:
+        raise StudyError(f"{f}: [[scenes]] is empty; name at least one scene")
+    if len({s.key for s in scenes}) != len(scenes):
+        raise StudyError(f"{f}: a scene appears twice in [[scenes]]")
+
+    models = []
+    for k, m in enumerate(_take(doc, "models", list, f, required=True)):
+        where = f"{f} [[models]] #{k + 1}"
+        if not isinstance(m, dict):
+            raise StudyError(f"{where}: each model is a table with name = ...")
+        _unknown(m, {"name", "label", "set"}, where)
+        mname = _take(m, "name", str, where, required=True)
+        if mname not in MODELS:
+            raise StudyError(f"{where}: model {mname!r} is unknown; choose one of {', '.join(MODELS)}")
+        if not MODELS[mname].learned:
+            raise StudyError(f"{where}: {mname!r} is a reference; references go in [references]")
+        settings = _take(m, "set", dict, where, {})
+        known = set(MODELS[mname].Config.__dataclass_fields__)
+        bad = sorted(set(settings) - known)
+        if bad:
+            raise StudyError(f"{where}: model {mname!r} has no setting {bad[0]!r}; its settings are {', '.join(sorted(known))}")
+        models.append(ModelEntry(mname, _take(m, "label", str, where, mname), tuple(sorted(settings.items()))))
+    if len({m.label for m in models}) != len(models):
+        raise StudyError(f"{f}: two [[models]] share a label; give each a distinct label")
+
+    rf = _take(doc, "references", dict, f, {})
+    _unknown(rf, {"mujoco_dt_factors"}, f"{f} [references]")
+    dts = _ints(rf, "mujoco_dt_factors", f"{f} [references]", (1, 2, 5, 10, 20), lo=1)
+
+    rs = _take(doc, "resolution", dict, f, {})
+    where = f"{f} [resolution]"
+    _unknown(rs, {"model", "refine", "seeds"}, where)
+    rmodel = _take(rs, "model", str, where, "mdgs")
+    if rs and rmodel not in MODELS:
+        raise StudyError(f"{where}: model {rmodel!r} is unknown")
+    refine = _ints(rs, "refine", where, (), lo=1)
+    return StudyConfig(name=name, path=str(path.resolve()), preset=preset, seeds=seeds, device=device,
+                       long_frames=long_frames, long_trajectories=long_traj, failure_factor=failure,
+                       sensitivity=sens, sensitivity_seeds=sens_seeds, budget=budget, scenes=tuple(scenes),
+                       models=tuple(models), mujoco_dt_factors=dts, resolution_model=rmodel,
+                       resolution_refine=refine, resolution_seeds=_ints(rs, "seeds", where, (0,)))

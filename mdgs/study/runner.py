@@ -1,0 +1,332 @@
+"""The resumable study runner: expands a study into cells, runs each, appends one line per finished cell.
+
+Cells (each has a stable ``key``, a hash of everything that decides its result):
+
+- ``learned``: train one model of the registry with one seed on one scene (the study's
+  budget; resumable), then evaluate it on the scene's test set, its test variants and the long
+  test set;
+- ``reference``: a non-learned model (constant twist; MuJoCo at each ``dt_factor``) on the same sets;
+- ``sensitivity``: MuJoCo at the data's own timestep from initial velocities perturbed by the
+  study's ``sensitivity`` (one cell per perturbation seed): the floor below which no model's
+  error can be told from chaos;
+- ``resolution``: the resolution model (MDGS) trained on data partitioned ``refine`` times finer.
+
+Layout of the output folder ``OUT``: ``study.json`` (which study it holds), ``data/<scene>[-r<k>]``
+and ``data/<scene>-long`` (datasets, made by :mod:`mdgs.data.generate`, resumable),
+``runs/<cell key>`` (run folders), ``results.jsonl`` (or ``results-I-of-N.jsonl`` for a share of
+the grid). A line is appended only when its cell is finished, in one ``write`` of the whole
+line followed by ``fsync``, so ``kill -9`` at any moment loses at most the cell in flight; a
+rerun skips cells whose key is already in a results file, repairs a torn last line, and
+resumes the cell in flight from its run folder (training resumes from its last epoch).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from mdgs.data.generate import GenerateConfig, generate
+from mdgs.data.split import SplitData, load_split
+from mdgs.evaluate.cost import step_cost
+from mdgs.evaluate.metrics import REPORT_TIMES, frame_of
+from mdgs.evaluate.physics import energy_error, hinge_anchors, joint_separation, rigidity_violation
+from mdgs.evaluate.rollout import divergence_threshold, rollout
+from mdgs.models import MODELS, Simulator, one_step_error
+from mdgs.partition import PartitionParams
+from mdgs.runs import atomic_json, load_run, resolve_device
+from mdgs.study.config import SceneEntry, StudyConfig, StudyError
+from mdgs.train import TrainConfig, train
+
+__all__ = ["Cell", "cells_of", "run_study", "read_results", "RESULTS_VERSION"]
+
+#: Version of the results line layout.
+RESULTS_VERSION = 1
+#: Frames of the curves stored per line are subsampled to at most this many points.
+CURVE_POINTS = 240
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One unit of work of a study (see the module docstring)."""
+
+    kind: str
+    scene: SceneEntry
+    model: str
+    label: str
+    settings: tuple = ()
+    seed: int = 0
+    refine: int = 1
+
+    def spec(self, study: StudyConfig) -> dict:
+        """Everything that decides this cell's result (hashed into :attr:`key`)."""
+        d = {"kind": self.kind, "scene": asdict(self.scene), "model": self.model, "label": self.label,
+             "settings": dict(self.settings), "seed": self.seed, "refine": self.refine,
+             "preset": study.preset, "long_frames": study.long_frames,
+             "long_trajectories": study.long_trajectories, "failure_factor": study.failure_factor}
+        if MODELS[self.model].learned:
+            d["budget"] = asdict(study.budget)
+        return d
+
+    def key(self, study: StudyConfig) -> str:
+        return hashlib.sha256(json.dumps(self.spec(study), sort_keys=True).encode()).hexdigest()[:16]
+
+
+def cells_of(study: StudyConfig) -> list[Cell]:
+    """The study's cells in run order: references first (cheap), then learned cells seed-major."""
+    out = []
+    for sc in study.scenes:
+        out.append(Cell("reference", sc, "constant-twist", "constant twist"))
+        for k in study.mujoco_dt_factors:
+            out.append(Cell("reference", sc, "mujoco", f"mujoco dt x{k}", (("dt_factor", k),)))
+        if study.sensitivity > 0:
+            for s in study.sensitivity_seeds:
+                out.append(Cell("sensitivity", sc, "mujoco", "sensitivity floor",
+                                (("dt_factor", 1), ("noise_seed", s), ("velocity_noise", study.sensitivity)), seed=s))
+    for seed in study.seeds:
+        for sc in study.scenes:
+            for m in study.models:
+                out.append(Cell("learned", sc, m.name, m.label, m.settings, seed))
+    for r in study.resolution_refine:
+        for seed in study.resolution_seeds:
+            for sc in study.scenes:
+                out.append(Cell("resolution", sc, study.resolution_model, f"{study.resolution_model} refine {r}",
+                                (), seed, r))
+    return out
+
+
+# --------------------------------------------------------------------------- data
+
+def _dataset(study: StudyConfig, out: Path, sc: SceneEntry, refine: int = 1, long: bool = False,
+             variant: str | None = None) -> Path:
+    """Generate (or find) a dataset of the study; returns its folder."""
+    name = variant or sc.name
+    folder = out / "data" / (name + (f"-r{refine}" if refine != 1 else "") + ("-long" if long else ""))
+    kw = {}
+    if long:
+        kw = {"n_frames": study.long_frames, "splits": ("test",), "n_traj": study.long_trajectories}
+    cfg = GenerateConfig(scene="" if sc.mjcf else name, out=str(folder), preset=study.preset, mjcf=sc.mjcf,
+                         substeps=sc.substeps, partition=PartitionParams(refine=refine), **kw)
+    if variant:
+        cfg = GenerateConfig(scene=variant, out=str(folder), preset=study.preset)
+    res = generate(cfg)
+    if not res.merged:
+        raise StudyError(f"dataset {folder} is incomplete (another process is generating it?); rerun the study")
+    return folder
+
+
+# --------------------------------------------------------------------------- metrics
+
+def _subsample(curve: np.ndarray) -> tuple[list[int], list]:
+    F = len(curve)
+    idx = np.unique(np.linspace(0, F - 1, min(F, CURVE_POINTS)).astype(int))
+    return idx.tolist(), [None if not np.isfinite(c) else float(c) for c in curve[idx]]
+
+
+def _per_traj_at(r, t: int) -> list:
+    f = frame_of(t, r.pos_mse.shape[1])
+    return [None if not np.isfinite(e) else float(e) for e in r.pos_mse[:, f]]
+
+
+def _evaluate_set(model: Simulator, d: SplitData, dev, failure_factor: float, anchors, long: bool) -> dict:
+    """Rollout metrics of one set: per-trajectory MSE at the report times (None = diverged), curves,
+    and on the long set the stability figures (fraction within the failure threshold, time to failure)."""
+    r = rollout(model, d, dev)
+    T, F = r.pos_mse.shape
+    rep = {"trajectories": T, "frames": F, "divergence_threshold_m2": r.threshold,
+           "diverged_at": r.diverged_at.tolist(), "ms_per_frame_batched": r.ms_per_frame,
+           "ms_per_trajectory_frame_batched": r.ms_per_trajectory_frame, "batch": T}
+    if not long:
+        for t in REPORT_TIMES:
+            rep[f"pos_mse_t{t}"] = _per_traj_at(r, t)
+            f = frame_of(t, F)
+            rep[f"vel_mse_t{t}"] = [None if not np.isfinite(e) else float(e) for e in r.vel_mse[:, f]]
+        with np.errstate(invalid="ignore"):
+            idx, curve = _subsample(np.nanmean(np.where(np.isfinite(r.pos_mse), r.pos_mse, np.nan), 0))
+        rep["curve_frames"], rep["pos_mse_curve"] = idx, curve
+        return rep
+    # stability: failure = position MSE above failure_factor x the split's position variance
+    thr = failure_factor * divergence_threshold(d) / 100.0
+    err = np.where(np.isfinite(r.pos_mse), r.pos_mse, np.inf)
+    failed = np.maximum.accumulate(err > thr, axis=1)
+    ttf = [int(np.argmax(row)) if row.any() else None for row in failed]
+    x, v = r.x.astype(np.float64), r.v.astype(np.float64)
+    alive = ~failed
+    g = np.asarray(d.attrs["gravity"], float)
+
+    def masked_mean(a):
+        with np.errstate(invalid="ignore"):
+            m = np.where(alive, a, np.nan)
+            return np.array([np.nanmean(c) if np.isfinite(c).any() else np.nan for c in m.T])
+
+    idx, within = _subsample(alive.mean(0))
+    rep.update({
+        "failure_threshold_m2": thr, "time_to_failure": ttf, "curve_frames": idx, "fraction_within": within,
+        "energy_error_J": _subsample(masked_mean(energy_error(x, v, d.x, d.v, d.static, g)))[1],
+        "rigidity_violation_m": _subsample(masked_mean(rigidity_violation(x, d.static)))[1],
+        "joint_separation_m": _subsample(masked_mean(joint_separation(x, d.static, anchors)))[1],
+        "joint_separation_max_m": float(np.nanmax(np.where(alive, joint_separation(x, d.static, anchors), np.nan)))
+        if alive.any() else None,
+    })
+    return rep
+
+
+def _versions() -> dict:
+    out = {"python": platform.python_version()}
+    for pkg in ("torch", "mujoco", "numpy", "mdgs"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = None
+    return out
+
+
+def _fingerprint(folder: Path, split: str) -> str:
+    import h5py
+
+    with h5py.File(folder / f"{split}.h5", "r") as f:
+        return str(f.attrs["config_sha256"])
+
+
+# --------------------------------------------------------------------------- cells
+
+def run_cell(study: StudyConfig, out: Path, cell: Cell, progress: Callable[[dict], None]) -> dict:
+    """Run one cell -> its results line (a dict)."""
+    t0 = time.perf_counter()
+    dev = resolve_device(study.device)
+    data = _dataset(study, out, cell.scene, cell.refine)
+    test = load_split(data / "test.h5")
+    line = {"version": RESULTS_VERSION, "study": study.name, "cell": cell.key(study), **cell.spec(study),
+            "scene": cell.scene.name, "data_fingerprint": _fingerprint(data, "test")}
+    train_info = {}
+    if MODELS[cell.model].learned:
+        run = out / "runs" / cell.key(study)
+        b = study.budget
+        cls = MODELS[cell.model]
+        cfg = TrainConfig(data=str(data), out=str(run), model_name=cell.model, epochs=b.epochs,
+                          batch_size=b.batch_size, seed=cell.seed, device=study.device, max_steps=b.max_steps,
+                          valid_max_pairs=b.valid_max_pairs, model=cls.Config(**dict(cell.settings)))
+        t1 = time.perf_counter()
+        train(cfg, progress=lambda e: progress({"kind": "train", **e}))
+        model, state = load_run(run, dev)
+        hist = state["history"]
+        train_info = {"epochs": len(hist), "steps": int(sum(h["steps"] for h in hist)),
+                      "train_seconds": float(sum(h["train_seconds"] for h in hist)),
+                      "wall_seconds_this_run": time.perf_counter() - t1,
+                      "valid_mse_last": hist[-1]["valid_mse"] if hist else None}
+        line["one_step_mse"] = one_step_error(model, test, dev)
+    else:
+        model = MODELS[cell.model].from_data(test, MODELS[cell.model].Config(**dict(cell.settings))).to(dev)
+    line["parameters"] = model.parameter_count()
+    line["train"] = train_info
+    anchors = hinge_anchors(test.mjcf)
+    progress({"kind": "evaluate", "set": "test"})
+    sets = {"test": _evaluate_set(model, test, dev, study.failure_factor, anchors, False)}
+    if cell.kind in ("learned", "reference"):
+        for v in cell.scene.variants:
+            vd = load_split(_dataset(study, out, cell.scene, variant=v) / "test.h5")
+            progress({"kind": "evaluate", "set": v})
+            sets[v] = _evaluate_set(model, vd, dev, study.failure_factor, anchors, False)
+        if study.long_frames:
+            ld = load_split(_dataset(study, out, cell.scene, cell.refine, long=True) / "test.h5")
+            progress({"kind": "evaluate", "set": "long"})
+            sets["long"] = _evaluate_set(model, ld, dev, study.failure_factor, anchors, True)
+    line["sets"] = sets
+    line["cost"] = {"single": step_cost(model, test, batch=1), "batched": step_cost(model, test, batch=test.x.shape[0])}
+    line["versions"] = _versions()
+    line["wall_seconds"] = time.perf_counter() - t0
+    return line
+
+
+# --------------------------------------------------------------------------- results file
+
+def _results_path(out: Path, share: tuple[int, int]) -> Path:
+    i, n = share
+    return out / ("results.jsonl" if n == 1 else f"results-{i}-of-{n}.jsonl")
+
+
+def read_results(out: str | os.PathLike) -> list[dict]:
+    """Every finished line of every results file in ``out`` (torn last lines ignored), one per cell."""
+    out = Path(out)
+    lines, seen = [], set()
+    for p in sorted(out.glob("results*.jsonl")):
+        for raw in p.read_text(encoding="utf-8").splitlines():
+            try:
+                rec = json.loads(raw)
+            except json.JSONDecodeError:
+                continue  # a torn last line of a killed run
+            if rec.get("cell") not in seen:
+                seen.add(rec.get("cell"))
+                lines.append(rec)
+    return lines
+
+
+def _repair(path: Path) -> None:
+    """Cut a torn last line (a kill during the write) so the next append starts on a fresh line."""
+    if not path.exists():
+        return
+    raw = path.read_bytes()
+    if raw and not raw.endswith(b"\n"):
+        cut = raw.rfind(b"\n") + 1
+        with open(path, "r+b") as f:
+            f.truncate(cut)
+
+
+def _append(path: Path, rec: dict) -> None:
+    data = (json.dumps(rec, sort_keys=True) + "\n").encode()
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        os.write(fd, data)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _claim_folder(study: StudyConfig, out: Path) -> None:
+    """Create ``out`` for this study, or check that it already holds this study."""
+    marker = out / "study.json"
+    if out.exists() and not out.is_dir():
+        raise StudyError(f"--out {out} is a file; choose a folder")
+    if marker.exists():
+        try:
+            theirs = json.loads(marker.read_text())
+        except json.JSONDecodeError:
+            theirs = {}
+        if theirs.get("name") != study.name:
+            raise StudyError(f"{out} holds results of study {theirs.get('name')!r}, not {study.name!r}; "
+                             "choose another --out")
+        return
+    if out.exists() and any(out.iterdir()):
+        raise StudyError(f"{out} is not empty and holds no study; choose an empty or new folder for --out")
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_json({"name": study.name, "path": study.path, "fingerprint": study.fingerprint()}, marker)
+
+
+def run_study(study: StudyConfig, out: str | os.PathLike, share: tuple[int, int] = (0, 1),
+              progress: Callable[[dict], None] | None = None) -> dict:
+    """Run this process's share of the study's cells; returns counts ``{"cells", "done", "ran"}``."""
+    progress = progress or (lambda e: None)
+    out = Path(out)
+    _claim_folder(study, out)
+    path = _results_path(out, share)
+    _repair(path)
+    done = {r["cell"] for r in read_results(out)}
+    i, n = share
+    mine = [c for k, c in enumerate(cells_of(study)) if k % n == i]
+    todo = [c for c in mine if c.key(study) not in done]
+    progress({"kind": "plan", "cells": len(mine), "todo": len(todo)})
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    for k, cell in enumerate(todo):
+        progress({"kind": "cell", "index": k, "total": len(todo), "label": f"{cell.scene.name} {cell.label} "
+                  f"seed {cell.seed}" + (f" refine {cell.refine}" if cell.refine != 1 else "")})
+        _append(path, run_cell(study, out, cell, progress))
+    return {"cells": len(mine), "done": len(mine) - len(todo), "ran": len(todo)}

@@ -1,0 +1,340 @@
+"""The study's tables, built from ``results.jsonl`` alone: the paper's Tables 1-4 plus stability, speed, resolution.
+
+Conventions (stated under every table): position MSE in 10^-3 m^2 at t = 40 and t = 110
+(t = 1 the given frame); a learned row is the mean +- sample std over seeds of each seed's mean
+over the test trajectories it did not fail on, with ``(k/n)`` when it failed on some; references
+are deterministic (no std) except the sensitivity floor (std over perturbation seeds). A
+diverged rollout counts as failed, never as a large number in a mean. Best learned row of each
+column in bold, second underlined. The "x constant twist" tables divide each learned run's mean
+by the constant-twist reference's mean over **the same trajectories** (those the run did not
+fail on), so model and reference are always averaged over the same trajectories.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections import defaultdict
+
+import numpy as np
+
+__all__ = ["PAPER_TABLES", "build_tables", "Table"]
+
+#: The paper's table layout: which scenes (in order) each table holds.
+PAPER_TABLES = {
+    "Table 1": ("cubli-single", "cubli-double", "cubli-triple", "rotational-none", "rotational-side",
+                "rotational-center", "space-single", "space-double", "space-strike"),
+    "Table 2": ("vehicle-original", "vehicle-fixed-obstacle", "vehicle-damaged", "vehicle-movable-obstacle",
+                "ur5husky-original", "ur5husky-interaction"),
+    "Table 4": ("cubli-triple", "rotational-center"),
+}
+TIMES = (40, 110)
+SCALE = 1e3  # m^2 -> 10^-3 m^2
+
+
+class Table:
+    """A rendered table: title, header, rows of strings (markdown emphasis in ``md``), note."""
+
+    def __init__(self, title: str, header: list[str], rows: list[list[str]], note: str, plain: list[list[str]]):
+        self.title, self.header, self.rows, self.note, self.plain = title, header, rows, note, plain
+
+    def markdown(self) -> str:
+        out = [f"### {self.title}", "", "| " + " | ".join(self.header) + " |",
+               "|" + "|".join("---" for _ in self.header) + "|"]
+        out += ["| " + " | ".join(r) + " |" for r in self.rows]
+        return "\n".join(out + ["", self.note, ""])
+
+    def csv_rows(self) -> list[list[str]]:
+        return [[self.title], self.header, *self.plain, []]
+
+    def latex(self) -> str:
+        def esc(s: str) -> str:
+            s = s.replace("**", "").replace("<u>", "").replace("</u>", "")
+            return s.replace("_", r"\_").replace("%", r"\%").replace("+-", r"$\pm$").replace("^2", r"$^2$")
+        cols = "l" * len(self.header)
+        body = [" & ".join(esc(h) for h in self.header) + r" \\ \hline"]
+        body += [" & ".join(esc(c) for c in r) + r" \\" for r in self.rows]
+        return "\n".join([rf"% {self.title}", rf"\begin{{tabular}}{{{cols}}}", *body, r"\end{tabular}", ""])
+
+
+def _mean_valid(vals) -> tuple[float | None, int]:
+    ok = [v for v in vals if v is not None and math.isfinite(v)]
+    return (float(np.mean(ok)) if ok else None), len(ok)
+
+
+def _fmt(mean, std, n_ok=None, n=None, scale=SCALE) -> str:
+    if mean is None:
+        return "failed"
+    s = f"{mean * scale:.3g}"
+    if std is not None:
+        s += f" +- {std * scale:.2g}"
+    if n is not None and n_ok is not None and n_ok < n:
+        s += f" ({n_ok}/{n})"
+    return s
+
+
+def _rows_by_label(lines: list[dict], kinds=("learned",)) -> dict:
+    """{(label, kind): {scene: [line, ...]}} in first-seen order."""
+    out: dict = {}
+    for ln in lines:
+        if ln["kind"] in kinds:
+            out.setdefault((ln["label"], ln["kind"]), defaultdict(list))[ln["scene"]].append(ln)
+    return out
+
+
+def _cell(lns: list[dict], set_name: str, t: int):
+    """(mean over seeds, std over seeds, trajectories ok (summed), trajectories (summed)) of one table cell."""
+    means, ok, tot = [], 0, 0
+    for ln in lns:
+        s = ln["sets"].get(set_name)
+        if s is None:
+            continue
+        m, k = _mean_valid(s[f"pos_mse_t{t}"])
+        ok, tot = ok + k, tot + s["trajectories"]
+        means.append(m)
+    if not means:
+        return None
+    if any(m is None for m in means):
+        return (None, None, ok, tot)
+    arr = np.array(means)
+    std = float(arr.std(ddof=1)) if len(arr) > 1 else None
+    return float(arr.mean()), std, ok, tot
+
+
+def _ratio_cell(lns, refs, set_name, t):
+    """Mean +- std over seeds of run mean / constant-twist mean over the run's surviving trajectories."""
+    ref = next((r for r in refs if r["model"] == "constant-twist"), None)
+    if ref is None or set_name not in ref["sets"]:
+        return None
+    rv = ref["sets"][set_name][f"pos_mse_t{t}"]
+    ratios = []
+    for ln in lns:
+        s = ln["sets"].get(set_name)
+        if s is None:
+            continue
+        mv = s[f"pos_mse_t{t}"]
+        pairs = [(a, b) for a, b in zip(mv, rv, strict=True) if a is not None and b is not None]
+        if not pairs:
+            ratios.append(None)
+            continue
+        ratios.append(float(np.mean([a for a, _ in pairs]) / max(np.mean([b for _, b in pairs]), 1e-300)))
+    if not ratios or any(r is None for r in ratios):
+        return "failed"
+    arr = np.array(ratios)
+    return f"{arr.mean():.3g}" + (f" +- {arr.std(ddof=1):.2g}" if len(arr) > 1 else "")
+
+
+def _mark_best(rows: list[list[str]], values: list[list[float | None]], n_learned: int) -> None:
+    """Bold the best, underline the second-best learned value of each column (lower is better)."""
+    for j in range(len(values[0]) if values else 0):
+        col = [(values[i][j], i) for i in range(n_learned) if values[i][j] is not None]
+        col.sort()
+        if col:
+            i = col[0][1]
+            rows[i][j + 1] = f"**{rows[i][j + 1]}**"
+        if len(col) > 1:
+            i = col[1][1]
+            rows[i][j + 1] = f"<u>{rows[i][j + 1]}</u>"
+
+
+def _reference_rows(lines, scenes, set_name="test"):
+    """Rows of the references: constant twist, MuJoCo at each dt factor, sensitivity floor."""
+    refs = [ln for ln in lines if ln["kind"] in ("reference", "sensitivity")]
+    labels = []
+    for ln in refs:
+        if ln["label"] not in labels:
+            labels.append(ln["label"])
+
+    def order(lbl):
+        if lbl == "constant twist":
+            return (0, 0)
+        if lbl.startswith("mujoco dt x"):
+            return (1, int(lbl.split("x")[-1]))
+        return (2, 0)
+    out = []
+    for lbl in sorted(labels, key=order):
+        row, plain = [f"{lbl} (reference)"], [lbl]
+        for t in TIMES:
+            for sc in scenes:
+                lns = [ln for ln in refs if ln["label"] == lbl and ln["scene"] == sc]
+                c = _cell(lns, set_name, t)
+                txt = "-" if c is None else _fmt(c[0], c[1], c[2], c[3])
+                row.append(txt)
+                plain.append(txt)
+        out.append((row, plain))
+    return out
+
+
+def _model_table(title, lines, scenes, note_extra="") -> list[Table]:
+    learned = _rows_by_label([ln for ln in lines if ln["scene"] in scenes])
+    header = ["model"] + [f"{sc} t={t}" for t in TIMES for sc in scenes]
+    rows, plain, values = [], [], []
+    ratio_rows = []
+    refs_by_scene = {sc: [ln for ln in lines if ln["kind"] == "reference" and ln["scene"] == sc] for sc in scenes}
+    for (label, _), by_scene in learned.items():
+        row, pl, vals, rr = [label], [label], [], [label]
+        for t in TIMES:
+            for sc in scenes:
+                c = _cell(by_scene.get(sc, []), "test", t)
+                txt = "-" if c is None else _fmt(c[0], c[1], c[2], c[3])
+                row.append(txt)
+                pl.append(txt)
+                vals.append(None if c is None else c[0])
+                rr.append(_ratio_cell(by_scene.get(sc, []), refs_by_scene[sc], "test", t) or "-")
+        rows.append(row)
+        plain.append(pl)
+        values.append(vals)
+        ratio_rows.append(rr)
+    _mark_best(rows, values, len(rows))
+    for row, pl in _reference_rows(lines, scenes):
+        rows.append(row)
+        plain.append(pl)
+    note = ("Position MSE in 10^-3 m^2 over moving nodes; mean +- std over seeds; (k/n): trajectories not "
+            "failed / all, summed over seeds; best learned row in bold, second underlined; references "
+            "below. " + note_extra)
+    t1 = Table(title, header, rows, note, plain)
+    t2 = Table(f"{title}, x constant twist on the same trajectories", header, ratio_rows,
+               "Each run's mean MSE divided by the constant-twist reference's mean over the same test "
+               "trajectories (those the run did not fail on); below 1: better than every body keeping its twist.",
+               ratio_rows)
+    return [t1, t2]
+
+
+def _generalization_table(lines) -> list[Table]:
+    variant_sets = sorted({s for ln in lines if ln["kind"] == "learned" for s in ln["sets"] if s not in ("test", "long")})
+    if not variant_sets:
+        return []
+    learned = _rows_by_label(lines)
+    header = ["model"] + [f"{v} t={t}" for t in TIMES for v in variant_sets] + [f"delta {v} t={t}" for t in TIMES for v in variant_sets]
+    rows = []
+    for (label, _), by_scene in learned.items():
+        lns = [ln for v in by_scene.values() for ln in v if any(s in ln["sets"] for s in variant_sets)]
+        if not lns:
+            continue
+        row, deltas = [label], []
+        for t in TIMES:
+            for v in variant_sets:
+                c = _cell(lns, v, t)
+                base = _cell(lns, "test", t)
+                row.append("-" if c is None else _fmt(c[0], c[1], c[2], c[3]))
+                deltas.append("-" if c is None or base is None or c[0] is None or base[0] is None
+                              else f"{(c[0] - base[0]) * SCALE:+.3g}")
+        rows.append(row + deltas)
+    note = ("Table 3: models trained on the original scene, evaluated on its test variants; delta = variant "
+            "minus the original test set (10^-3 m^2).")
+    return [Table("Table 3 (generalization)", header, rows, note, rows)]
+
+
+def _stability_table(lines) -> Table | None:
+    rows = []
+    for ln_group in _group(lines, lambda ln: "long" in ln["sets"]):
+        lns = ln_group
+        ttf_all, n_all, never, joint, frames = [], 0, 0, [], None
+        for ln in lns:
+            s = ln["sets"]["long"]
+            frames = s["frames"]
+            n_all += s["trajectories"]
+            ttf_all += [f for f in s["time_to_failure"] if f is not None]
+            never += sum(f is None for f in s["time_to_failure"])
+            if s.get("joint_separation_max_m") is not None:
+                joint.append(s["joint_separation_max_m"])
+        med = "-" if not ttf_all else f"{int(np.median(ttf_all))}"
+        rows.append([lns[0]["scene"], lns[0]["label"], str(len(lns)), f"{frames}", med,
+                     f"{never}/{n_all} ({100 * never / max(n_all, 1):.0f} %)",
+                     "-" if not joint else f"{1e3 * max(joint):.3g}"])
+    if not rows:
+        return None
+    header = ["scene", "model", "runs", "frames", "median time to failure (frames)", "never failed",
+              "max joint separation before failure (mm)"]
+    note = ("Long test trajectories (10x the training horizon where the study says so). Failure: position MSE "
+            "above failure_factor x the position variance of the moving nodes in the set; time to failure is "
+            "the first frame past it (the median over failed trajectories, all seeds).")
+    return Table("Stability", header, rows, note, rows)
+
+
+def _group(lines, pred):
+    groups: dict = {}
+    for ln in lines:
+        if pred(ln):
+            groups.setdefault((ln["scene"], ln["label"]), []).append(ln)
+    return list(groups.values())
+
+
+def _speed_table(lines) -> Table | None:
+    rows = []
+    for lns in _group(lines, lambda ln: ln["kind"] in ("learned", "reference")):
+        ln = lns[0]
+        single = np.median([x["cost"]["single"]["ms_per_frame"] for x in lns])
+        batched = np.median([x["cost"]["batched"]["ms_per_trajectory_frame"] for x in lns])
+        tr = [x["train"].get("train_seconds") for x in lns if x["train"]]
+        rows.append([ln["scene"], ln["label"], f"{ln['parameters']}", f"{single:.3g}",
+                     f"{batched:.3g} (batch {ln['cost']['batched']['batch']})",
+                     "-" if not tr else f"{np.median(tr):.0f}"])
+    if not rows:
+        return None
+    header = ["scene", "model", "parameters", "ms per frame, 1 trajectory", "ms per trajectory-frame, batched",
+              "training s (median over seeds)"]
+    return Table("Speed", header, rows, "Medians over seeds of the median of 3 timed repeats "
+                 "(mdgs.evaluate.cost.step_cost), this machine, as configured by the study's device.", rows)
+
+
+def _resolution_table(lines) -> Table | None:
+    res = [ln for ln in lines if ln["kind"] == "resolution"]
+    if not res:
+        return None
+    base = [ln for ln in lines if ln["kind"] == "learned" and ln["model"] == res[0]["model"]
+            and ln["settings"] == {} and ln["label"] == res[0]["model"]]
+    rows = []
+    for lns in _group(base + res, lambda ln: True):
+        ln = lns[0]
+        refine = ln.get("refine", 1)
+        c40, c110 = _cell(lns, "test", 40), _cell(lns, "test", 110)
+        cost = np.median([x["cost"]["single"]["ms_per_frame"] for x in lns])
+        rows.append([ln["scene"], f"{refine}", str(ln["parameters"]), _fmt(*c40) if c40 else "-",
+                     _fmt(*c110) if c110 else "-", f"{cost:.3g}"])
+    rows.sort(key=lambda r: (r[0], int(r[1])))
+    header = ["scene", "refine", "parameters", "t=40 (10^-3 m^2)", "t=110 (10^-3 m^2)", "ms per frame"]
+    return Table("Resolution", header, rows, "MDGS on the default (coarsest adequate) element partition "
+                 "(refine 1) and finer ones: does a finer partition buy accuracy for its cost?", rows)
+
+
+def build_tables(lines: list[dict]) -> list[Table]:
+    """Every table the results support (tables whose scenes are absent are left out)."""
+    scenes_present = []
+    for ln in lines:
+        if ln["scene"] not in scenes_present:
+            scenes_present.append(ln["scene"])
+    out = []
+    covered = set()
+    for title, scenes in PAPER_TABLES.items():
+        sc = [s for s in scenes if s in scenes_present]
+        if not sc:
+            continue
+        if title == "Table 4":
+            out += _model_table("Table 4 (ablation: MDGS variants beside the peers)", lines, sc)
+            continue
+        covered |= set(sc)
+        out += _model_table(title, lines, sc)
+    other = [s for s in scenes_present if s not in covered and s not in PAPER_TABLES["Table 4"]]
+    if other:
+        out += _model_table("Other scenes", lines, other)
+    out += _generalization_table(lines)
+    for t in (_stability_table(lines), _speed_table(lines), _resolution_table(lines)):
+        if t is not None:
+            out.append(t)
+    return out
+
+
+def render(lines: list[dict], study_name: str) -> dict[str, str]:
+    """``{"tables.md": ..., "tables.csv": ..., "tables.tex": ...}`` of the results."""
+    tables = build_tables(lines)
+    md = [f"# Study `{study_name}`: tables", "",
+          f"Built from {len(lines)} results lines by `mdgs study --report`. " + __doc__.split("\n\n")[1].replace("\n", " "), ""]
+    md += [t.markdown() for t in tables]
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    for t in tables:
+        w.writerows(t.csv_rows())
+    tex = "\n".join(t.latex() for t in tables)
+    return {"tables.md": "\n".join(md), "tables.csv": buf.getvalue(), "tables.tex": tex}

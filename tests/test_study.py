@@ -1,0 +1,152 @@
+"""``mdgs study``: study files are checked, the grid runs resumably, tables and charts come from results.jsonl alone."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from mdgs.cli import app
+from mdgs.study import StudyError, cells_of, load_study, read_results
+from mdgs.study.tables import build_tables
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "studies" / "tiny.toml"
+runner = CliRunner()
+
+
+def _write(tmp_path, text: str) -> Path:
+    p = tmp_path / "s.toml"
+    p.write_text(text)
+    return p
+
+
+GOOD = """
+[study]
+name = "t"
+preset = "tiny"
+seeds = [0]
+[[scenes]]
+name = "cubli-single"
+[[models]]
+name = "mdgs"
+"""
+
+
+@pytest.mark.parametrize(("text", "phrase"), [
+    ("[study\nname=", "not valid TOML"),
+    (GOOD.replace('name = "mdgs"', 'name = "nosuch"'), "model 'nosuch' is unknown"),
+    (GOOD.replace('name = "cubli-single"', 'name = "moon-base"'), "scene 'moon-base' is unknown"),
+    (GOOD.replace("seeds = [0]", "seeds = [0]\nsedes = [1]"), "unknown key 'sedes'"),
+    (GOOD.replace("seeds = [0]", 'seeds = "0"'), "should be of type list"),
+    (GOOD.replace('[[models]]\nname = "mdgs"', '[[models]]\nname = "mdgs"\nset = { hiden = 3 }'), "no setting 'hiden'"),
+    (GOOD.replace('[[models]]\nname = "mdgs"', '[[models]]\nname = "mujoco"'), "is a reference"),
+    (GOOD.replace('preset = "tiny"', 'preset = "huge"'), "preset 'huge' is unknown"),
+])
+def test_malformed_study_file_is_one_sentence_and_exit_2(tmp_path, text, phrase):
+    path = _write(tmp_path, text)
+    with pytest.raises(StudyError, match=phrase.replace("(", r"\(")):
+        load_study(path)
+    res = runner.invoke(app, ["study", str(path), "--out", str(tmp_path / "o")])
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert phrase in res.output and len(res.output.strip().splitlines()) == 1, res.output
+    assert not (tmp_path / "o").exists()  # nothing written for a bad study file
+
+
+def test_output_folder_of_another_study_is_refused(tmp_path):
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "study.json").write_text(json.dumps({"name": "other"}))
+    res = runner.invoke(app, ["study", str(_write(tmp_path, GOOD)), "--out", str(out)])
+    assert res.exit_code == 2 and "holds results of study 'other'" in res.output
+    (out / "study.json").unlink()
+    (out / "stray.txt").write_text("x")
+    res = runner.invoke(app, ["study", str(_write(tmp_path, GOOD)), "--out", str(out)])
+    assert res.exit_code == 2 and "not empty" in res.output
+
+
+def test_cells_cover_the_grid_once_and_shares_partition_it():
+    study = load_study(TINY)
+    cells = cells_of(study)
+    keys = [c.key(study) for c in cells]
+    assert len(set(keys)) == len(keys)
+    n_ref = len(study.scenes) * (1 + len(study.mujoco_dt_factors) + len(study.sensitivity_seeds))
+    assert len(cells) == n_ref + len(study.scenes) * len(study.models) * len(study.seeds)
+    # a job array of 3 shares runs every cell exactly once
+    shares = [[c.key(study) for k, c in enumerate(cells) if k % 3 == i] for i in range(3)]
+    assert sorted(sum(shares, [])) == sorted(keys)
+
+
+def _accuracy_tables(lines):
+    return [t.markdown() for t in build_tables(lines) if t.title not in ("Speed", "Resolution")]
+
+
+def _study(out: Path, *extra) -> subprocess.Popen:
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    return subprocess.Popen([sys.executable, "-m", "mdgs.cli", "study", str(TINY), "--out", str(out), *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+
+
+@pytest.fixture(scope="module")
+def clean_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("study") / "clean"
+    p = _study(out)
+    log = p.communicate(timeout=900)[0].decode()
+    assert p.returncode == 0, log
+    return out
+
+
+def test_tiny_study_writes_results_tables_and_charts(clean_run):
+    lines = read_results(clean_run)
+    study = load_study(TINY)
+    assert {ln["cell"] for ln in lines} == {c.key(study) for c in cells_of(study)}
+    for ln in lines:
+        assert ln["sets"]["test"]["trajectories"] >= 1 and ln["cost"]["single"]["ms_per_frame"] > 0
+        assert ln["versions"]["torch"] and ln["data_fingerprint"]
+    # MuJoCo at the data's own timestep replays the data: its error is at round-off level
+    mj1 = [ln for ln in lines if ln["label"] == "mujoco dt x1"]
+    assert mj1 and all(v < 1e-8 for ln in mj1 for v in ln["sets"]["test"]["pos_mse_t40"])
+    for f in ("tables.md", "tables.csv", "tables.tex", "speed_accuracy.png", "speed_accuracy.svg", "stability.png"):
+        assert (clean_run / f).stat().st_size > 200, f
+    md = (clean_run / "tables.md").read_text()
+    assert "### Table 1" in md and "constant twist (reference)" in md and "sensitivity floor" in md
+
+
+def test_report_redraws_from_results_alone(clean_run, tmp_path):
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    for f in ("results.jsonl", "study.json"):
+        (copy / f).write_bytes((clean_run / f).read_bytes())
+    res = runner.invoke(app, ["study", "--report", str(copy)])
+    assert res.exit_code == 0, res.output
+    assert (copy / "tables.md").read_text() == (clean_run / "tables.md").read_text()  # same lines, same tables
+    assert (copy / "speed_accuracy.png").stat().st_size > 1000
+
+
+def test_killed_study_resumes_with_each_cell_once_and_the_same_tables(clean_run, tmp_path):
+    out = tmp_path / "killed"
+    p = _study(out)
+    results = out / "results.jsonl"
+    t0 = time.time()
+    while time.time() - t0 < 600:  # kill -9 once a few cells have finished, in the middle of the next
+        if results.exists() and results.read_text().count("\n") >= 3:
+            time.sleep(1.5)
+            break
+        time.sleep(0.2)
+    os.killpg(p.pid, signal.SIGKILL)
+    p.wait()
+    n_before = results.read_text().count("\n")
+    assert 1 <= n_before < len(read_results(clean_run))
+    p = _study(out)
+    log = p.communicate(timeout=900)[0].decode()
+    assert p.returncode == 0, log
+    keys = [json.loads(x)["cell"] for x in results.read_text().splitlines()]
+    assert len(keys) == len(set(keys)) == len(read_results(clean_run))  # each cell exactly once
+    assert _accuracy_tables(read_results(out)) == _accuracy_tables(read_results(clean_run))
