@@ -3,8 +3,9 @@
 Placeholders (in any ``docs/*.md``)::
 
     {{ latex:eq34 }}   display math: ``kane.claims.CLAIMS["eq34"].latex()``
-    {{ claim:eq34 }}   the claim's equation, statement, verdict table, counterexample (if
-                       refuted) and its corrected statement with its own equation and verdict
+    {{ claim:eq34 }}   the claim's equation, statement, scope line, verdict table,
+                       counterexample (if refuted) and its corrected statement with its own
+                       equation, scope line, the verdict and cases of each clause, and table
     {{ report }}       the validation report: summary line, one row per check, environment
 
 The LaTeX comes from ``sympy.latex`` of the very expression the checks verify, so the pages
@@ -127,6 +128,32 @@ def _verdict_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _summaries() -> dict:
+    """Claim id -> the report's ``claims`` entry (computed from the rows for older reports)."""
+    rep = _report()
+    if "claims" not in rep:
+        from validation.report import claim_summaries
+
+        rep["claims"] = claim_summaries(rep["checks"], _claims())
+    return {c["id"]: c for c in rep["claims"]}
+
+
+def _scope(claim_id: str) -> str:
+    c = _summaries().get(claim_id)
+    return f"**Scope:** {_escape(c['scope'])}." if c else "**Scope:** not run in this report."
+
+
+def _clause_table(claim_id: str) -> list[str]:
+    c = _summaries().get(claim_id)
+    if not c or len(c["clauses"]) < 2:
+        return []
+    lines = ["| clause | verdict | checked on |", "|---|---|---|"]
+    for cl in c["clauses"]:
+        cases = "<br>".join(_escape(x) for x in cl["cases"]) or "&ndash;"
+        lines.append(f"| {_escape(cl['text'])} | {_BADGE.get(cl['verdict'], cl['verdict'])} | {cases} |")
+    return lines
+
+
 def _cex_line(r: dict) -> str:
     from validation.report import counterexample_line
 
@@ -139,7 +166,7 @@ def _claim_block(claim_id: str) -> str:
         raise PluginError(f"docs placeholder names unknown claim '{claim_id}'; known: {', '.join(sorted(claims))}.")
     c = claims[claim_id]
     rows = [r for r in _report()["checks"] if r["id"] == claim_id]
-    out = [f"**{_escape(c.title)}** &mdash; Eq. {c.equation}. {_escape(c.statement)}", "", _latex_block(claim_id), ""]
+    out = [f"**{_escape(c.title)}** &mdash; Eq. {c.equation}. {_escape(c.statement)}", "", _scope(claim_id), "", _latex_block(claim_id), ""]
     if rows:
         out += [_verdict_table(rows), ""]
     else:
@@ -154,13 +181,18 @@ def _claim_block(claim_id: str) -> str:
         cc = claims[cid]
         crow = [r for r in _report()["checks"] if r["id"] == cid]
         out += [
-            f'!!! note "Corrected statement ({cid})"',
+            f'!!! note "Corrected statement ({cid}): {_escape(cc.title)}"',
             "",
             f"    {_escape(cc.statement)}",
+            "",
+            f"    {_scope(cid)}",
             "",
             *("    " + line for line in _latex_block(cid).splitlines()),
             "",
         ]
+        clause_rows = _clause_table(cid)
+        if clause_rows:
+            out += ["    " + line for line in clause_rows] + [""]
         if crow:
             out += ["    " + line for line in _verdict_table(crow).splitlines()]
             out.append("")
@@ -181,6 +213,8 @@ def _report_block() -> str:
             f"| `{r['id']}` {eq}<br>{_escape(r['claim'])} | {_escape(r['case'])} | {r['route']} | "
             f"{_BADGE.get(r['verdict'], r['verdict'])} | {_fmt(r['residual'])} | {_fmt(r['tolerance'])} |"
         )
+    out += ["", "### Scope of each verdict", ""]
+    out += [f"- `{c['id']}` {_escape(c['title'])}: {_escape(c['scope'])}." for c in _summaries().values()]
     notes = []
     for r in rep["checks"]:
         if r["verdict"] == "refuted":

@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 import sympy as sp
@@ -35,6 +36,14 @@ class Claim:
     equation: str
     expression: Callable[[], object] = field(repr=False, default=lambda: None)
     corrected_id: str | None = None
+    #: (key, text) per clause: the parts of a corrected statement, or the settings in which a
+    #: paper claim is tried; every check names one key (``CheckSpec.clause``) and the verdict's
+    #: scope line reads "<verdict> for <text>" per clause. Empty: one clause, :data:`EVERY_CASE`.
+    clauses: tuple = ()
+
+    def clause_list(self) -> list[tuple[str, str]]:
+        """The clauses, ``[("", EVERY_CASE)]`` for a single-clause claim."""
+        return list(self.clauses) or [("", EVERY_CASE)]
 
     def latex(self) -> str:
         """LaTeX of the verified sympy expression (``<= 0`` for margins)."""
@@ -45,6 +54,8 @@ class Claim:
             return sp.latex(e) + r" \le 0" if self.id in _MARGIN_CLAIMS else sp.latex(e)
         return sp.latex(e)
 
+
+EVERY_CASE = "every case tried"
 
 _MARGIN_CLAIMS = {c for base in ("eq34", "eq35", "eq36", "eq37", "eq12") for c in (base, base + ".corrected")}
 _S = terms.LOSS_SYMBOLS
@@ -95,6 +106,11 @@ def _eq12_expr(corrected: bool):
     return sp.Le(sp.Abs(sp.Symbol("Psi")), sp.Sum(body, (i, 1, n)))
 
 
+
+_ROT = ("rot", "rotational speeds")
+_POINT4 = (("", "a rotational speed of a generic element of 4 point masses"),)
+
+
 def _claims() -> dict[str, Claim]:
     C = [
         Claim("eq3", "Kane's equation", "K_gamma + K*_gamma = 0 for every generalized speed gamma.", "(3)",
@@ -105,39 +121,86 @@ def _claims() -> dict[str, Claim]:
         Claim("eq19", "K*_gamma as element sum", "K*_gamma = -sum_i M_i a_i . u_{i,gamma} - L*_i . omega_{i,gamma}.", "(19)",
               lambda: _identity("eq19")),
         Claim("eq23", "one-hot partial velocities", "The partial velocity of every element centroid w.r.t. every independent speed is a one-hot vector.", "(22)-(23)",
-              lambda: sp.Eq(sp.Symbol(r"\vec{u}'_{i,\gamma}"), sp.Symbol(r"\vec{e}_\gamma")), "eq23.corrected"),
-        Claim("eq23.corrected", "one-hot for translational speeds", "u_{i,gamma} = e_gamma and omega_{i,gamma} = 0 exactly when gamma is a translational speed of a free (or prismatic) base carrying every body.", "(23)*",
+              lambda: sp.Eq(sp.Symbol(r"\vec{u}'_{i,\gamma}"), sp.Symbol(r"\vec{e}_\gamma")), "eq23.corrected",
+              (("rot", "rotational and joint speeds"), ("trans", "the world-axis translational speeds of a free base"))),
+        Claim("eq23.corrected", "one-hot exactly for world-axis translations of a base carrying every element",
+              "At any configuration, u_{i,gamma} = +-e_k (the same k for every element i) and omega_{i,gamma} = 0 "
+              "if and only if gamma is the speed of a translation along a world coordinate axis by a joint that carries "
+              "every element: (a) such speeds (MuJoCo's free-joint qvel[0:3], which are world axes; a slide joint whose axis "
+              "is a world axis) are one-hot; (b) no other speed is: rotations, joints of a subtree, and translations along "
+              "non-coordinate or body-fixed axes (Pinocchio's free-flyer velocity is in the body frame, one-hot only while "
+              "the base is axis-aligned).", "(23)*",
               lambda: sp.And(sp.Eq(sp.Symbol(r"\vec{u}'_{i,\gamma}"), sp.Symbol(r"\vec{e}_\gamma")),
-                             sp.Eq(sp.Symbol(r"\vec{\omega}_{i,\gamma}"), 0))),
+                             sp.Eq(sp.Symbol(r"\vec{\omega}_{i,\gamma}"), 0)), None,
+              (("a", "(a) world-axis translations of a joint carrying every element are one-hot"),
+               ("b", "(b) no other speed is one-hot (rotations, subtree joints, oblique or body-frame axes)"))),
         Claim("eq11", "Theorem 3.1", "sum_i F_{gamma,i} - sum_i M_i (v_gamma^{t+1} - v_gamma^t)/delta + Psi = 0 for every independent speed gamma.", "(11)",
-              _eq11_expr, "eq11.corrected"),
-        Claim("eq11.corrected", "Theorem 3.1, translational", "For translational speeds Psi = 0 and sum_i F_{gamma,i} = sum_i M_i a_{gamma,i} exactly; with finite differences (v^{t+1}-v^t)/delta it is exact only for a single free rigid body on Euler-integrated data (O(delta) for multibody systems or other integrators); for rotational speeds only Kane's form with partial velocities holds.", "(11)*",
-              lambda: _eq11_expr(True)),
+              _eq11_expr, "eq11.corrected",
+              (_ROT, ("trans", "translational speeds (Psi = 0) of a single free body centred on its joint origin (Euler)"),
+               ("fd", "translational speeds of off-centre or articulated bodies (Euler, O(delta)) or with contact (RK4)"))),
+        Claim("eq11.corrected", "Newton's law for translational speeds; when the forward difference is exact",
+              "For the world-axis translational speeds gamma of a free base carrying every body (Eq. 23*), omega_{i,gamma} = 0, "
+              "so Psi = 0 and (a) sum_i F_{gamma,i} = sum_i M_i a_{gamma,i} exactly with the elements' true accelerations "
+              "(single, off-centre and articulated free bodies, with contact). With the forward difference "
+              "(v^{t+1} - v^t)/delta for a on MuJoCo data: (b) semi-implicit Euler is exact to round-off for a single free "
+              "rigid body whose joint origin is its centre of mass, with or without contact; (c) Euler leaves a residual "
+              "that shrinks like delta, nonzero while the body spins, when the joint origin is off the centre of mass or "
+              "the body is articulated; (d) RK4 is exact to "
+              "round-off without contact (gravity only), off-centre and articulated bodies included; (e) RK4 with contact is "
+              "not exact, and its residual, made at contact onset, does not shrink like delta.", "(11)*",
+              lambda: _eq11_expr(True), None,
+              (("a", "(a) Newton exact with true accelerations"),
+               ("b", "(b) Euler forward difference exact for a centred single free body"),
+               ("c", "(c) Euler forward difference O(delta), nonzero, for spinning off-centre or articulated bodies"),
+               ("d", "(d) RK4 forward difference exact without contact"),
+               ("e", "(e) RK4 forward difference with contact not exact, not O(delta)"))),
         Claim("eq30", "Psi proportional to radii", "Psi is proportional to sum_i sum_l |r_{i,l}|.", "(30)",
               lambda: _psi_scaling(False), "eq30.corrected"),
-        Claim("eq30.corrected", "Psi = O(tau)", "Under scaling r -> s r of the elements, Psi = s (moment term) - s^2 (inertia term): linear plus quadratic, vanishing as tau -> 0.", "(30)*",
+        Claim("eq30.corrected", "Psi = s (moment term) - s^2 (inertia term) under r -> s r",
+              "Under scaling r -> s r of the elements, Psi = s (moment term) - s^2 (inertia term): linear plus quadratic, vanishing as tau -> 0.", "(30)*",
               lambda: sp.Eq(sp.Function("Psi")(sp.Symbol("s") * sp.Symbol("r")),
                             sp.Symbol("s") * sp.Symbol("M_z") - sp.Symbol("s") ** 2 * sp.Symbol("L^*_z"))),
         Claim("eq15", "L_cst = 0 on ground truth", "The constraint loss L_sup + L_inf of Eqs. (13)-(15) is zero on exact ground-truth data.", "(15)",
-              lambda: sp.Eq(sp.Symbol("L_cst"), terms.loss_cst)),
+              lambda: sp.Eq(sp.Symbol("L_cst"), terms.loss_cst), None,
+              (("", "the paper's translational x, y, z constraints on a centred free body (Euler)"),)),
     ]
     ineq = {
         "eq34": ("moment of forces bound", "|sum_l (r_l x F_l) . omega_gamma| <= tau |R_i| omega_gamma.",
-                 "|sum_l (r_l x F_l) . omega_{i,gamma}| <= |omega_{i,gamma}| tau_i sum_l |F_l| (magnitudes summed, not the resultant)."),
+                 "moment of forces <= tau sum_l |F_l|",
+                 "|sum_l (r_l x F_l) . omega_{i,gamma}| <= |omega_{i,gamma}| tau_i sum_l |F_l| (magnitudes summed, not the resultant).",
+                 _POINT4, _POINT4),
         "eq35": ("inertia torque <= I w'", "sum_l (r_l x m_l a_l) . omega_gamma <= I_i w'_i.",
-                 "|L*_i . omega_{i,gamma}| <= |omega_{i,gamma}| (|I_i alpha_i| + M_i tau^2 |omega_i|^2 / 2) (gyroscopic term included)."),
+                 "inertia torque <= |I alpha| + M tau^2 |omega|^2/2 (gyroscopic term)",
+                 "|L*_i . omega_{i,gamma}| <= |omega_{i,gamma}| (|I_i alpha_i| + M_i tau^2 |omega_i|^2 / 2) (gyroscopic term included).",
+                 _POINT4, _POINT4),
         "eq36": ("I_i <= (2/5) m tau^2", "The element's moment of inertia is at most that of a solid sphere of radius tau: I_i <= (2/5) M_i tau^2.",
-                 "I_i <= M_i tau^2 for any mass distribution within radius tau (tight: a ring); (1/3) M_i tau^2 for uniform boxes."),
+                 "I_i <= M_i tau^2 (tight: a ring); (1/3) M_i tau^2 for uniform solid boxes only",
+                 "(a) I_i <= M_i tau^2 for any mass distribution within radius tau of the centroid, attained by a ring; "
+                 "(b) a uniform solid (continuum) box has I_i <= (1/3) M_i tau^2; (c) boxes of point masses, the element model "
+                 "of the paper and of partition_box, do not: 8 corner masses give (2/3) M_i tau^2 for a cube and flat cells "
+                 "approach M_i tau^2.",
+                 (("flat", "flat solids (a disc) and point-mass elements"), ("solid", "uniform solid boxes, tetrahedra and spheres")),
+                 (("a", "(a) I <= M tau^2 for any distribution, attained by a ring"),
+                  ("b", "(b) I <= (1/3) M tau^2 for uniform solid boxes"),
+                  ("c", "(c) point-mass boxes reach (2/3) M tau^2 (cube) and approach M tau^2 (flat)"))),
         "eq37": ("inertia torque sphere bound", "|sum_l (r_l x m_l a_l) . omega_gamma| <= (2/5) M_i tau^2 w'_i.",
-                 "|L*_i . omega_{i,gamma}| <= |omega_{i,gamma}| M_i tau^2 (|alpha_i| + |omega_i|^2 / 2)."),
+                 "inertia torque <= M tau^2 (|alpha| + |omega|^2/2)",
+                 "|L*_i . omega_{i,gamma}| <= |omega_{i,gamma}| M_i tau^2 (|alpha_i| + |omega_i|^2 / 2).",
+                 _POINT4, _POINT4),
         "eq12": ("Theorem 3.2", "|Psi| <= tau sum_i |R_i| omega_gamma + sum_i (2/5) M_i tau^2 w'_i.",
-                 "|Psi| <= sum_i |omega_{i,gamma}| (tau_i sum_l |F_{i,l}| + M_i tau_i^2 (|alpha_i| + |omega_i|^2/2)); zero slack for translational speeds."),
+                 "|Psi| <= sum of force magnitudes and gyroscopic inertia terms; zero for translational speeds",
+                 "(a) |Psi| <= sum_i |omega_{i,gamma}| (tau_i sum_l |F_{i,l}| + M_i tau_i^2 (|alpha_i| + |omega_i|^2/2)) for every "
+                 "speed, with external loads in Psi; (b) for the world-axis translational speeds (Eq. 23*) omega_{i,gamma} = 0, "
+                 "so Psi = 0 and the bound is 0: the constraint of Eqs. (13)-(15) becomes the equality of Eq. (11)*.",
+                 (("rot", "rotational speeds, external loads only in Psi"),
+                  ("internal", "rotational speeds with the inter-element forces in Psi (Psi = 0)"),
+                  ("trans", "the translational speeds MDGS trains with (Psi = 0; true but loose)")),
+                 (("a", "(a) the bound for rotational speeds"), ("b", "(b) Psi = 0 = bound for world-axis translational speeds"))),
     }
-    for cid, (title, st, corr) in ineq.items():
-        C.append(Claim(cid, title, st, f"({cid[2:]})", (lambda c=cid: margin_expression(c)), cid + ".corrected"))
-        C.append(Claim(cid + ".corrected", title + " (corrected)", corr, f"({cid[2:]})*", (lambda c=cid: margin_expression(c + ".corrected"))))
-    C.append(Claim("eq12.corrected.translational", "Theorem 3.2 slack for translational speeds", "For translational speeds the corrected bound is 0 and the constraint is an equality.", "(12)*",
-                   lambda: _eq12_expr(True)))
+    for cid, (title, st, ctitle, corr, scope, cscope) in ineq.items():
+        C.append(Claim(cid, title, st, f"({cid[2:]})", (lambda c=cid: margin_expression(c)), cid + ".corrected", scope))
+        C.append(Claim(cid + ".corrected", ctitle, corr, f"({cid[2:]})*", (lambda c=cid: margin_expression(c + ".corrected")),
+                       None, cscope))
     return {c.id: c for c in C}
 
 
@@ -151,21 +214,23 @@ CLAIMS: dict[str, Claim] = _claims()
 
 @dataclass(frozen=True)
 class CheckSpec:
-    """A check: which claim, on which case, by which route; ``quick`` marks the fast subset."""
+    """A check: which claim (and which of its clauses), on which case, by which route;
+    ``quick`` marks the fast subset."""
 
     claim_id: str
     case: str
     route: str
     fn: Callable[..., CheckResult | list[CheckResult]]
     quick: bool = True
+    clause: str = ""
 
 
 CHECKS: list[CheckSpec] = []
 
 
-def _check(claim_id: str, case: str, route: Route, quick: bool = True):
+def _check(claim_id: str, case: str, route: Route, quick: bool = True, clause: str = ""):
     def deco(fn):
-        CHECKS.append(CheckSpec(claim_id, case, route.value, fn, quick))
+        CHECKS.append(CheckSpec(claim_id, case, route.value, fn, quick, clause))
         return fn
 
     return deco
@@ -310,10 +375,12 @@ def _ineq_hyp(cid: str):
     return fn
 
 
+_GENERIC_CLAUSE = {"eq36": "flat", "eq36.corrected": "a", "eq12": "rot", "eq12.corrected": "a"}
 for _cid in ("eq34", "eq35", "eq36", "eq37", "eq12"):
     for _c in (_cid, _cid + ".corrected"):
-        CHECKS.append(CheckSpec(_c, "generic element", Route.CASADI.value, _ineq_casadi(_c), True))
-        CHECKS.append(CheckSpec(_c, "generic element", Route.HYPOTHESIS.value, _ineq_hyp(_c), False))
+        _k = _GENERIC_CLAUSE.get(_c, "")
+        CHECKS.append(CheckSpec(_c, "generic element", Route.CASADI.value, _ineq_casadi(_c), True, _k))
+        CHECKS.append(CheckSpec(_c, "generic element", Route.HYPOTHESIS.value, _ineq_hyp(_c), False, _k))
 
 
 # --- Eq. (30): proportionality of Psi to the radii ------------------------------------------
@@ -348,46 +415,179 @@ CHECKS.append(CheckSpec("eq30", "generic element", Route.SYMBOLIC.value, _eq30(F
 CHECKS.append(CheckSpec("eq30.corrected", "generic element", Route.SYMBOLIC.value, _eq30(True), True))
 
 
-# --- Eq. (23): one-hot partial velocities (MuJoCo Jacobians) --------------------------------
+# --- Eq. (23): one-hot partial velocities (MuJoCo and Pinocchio Jacobians) -------------------
 
-def _eq23(corrected: bool):
+_ONEHOT_SEEN = 1e-9  # a speed "looks one-hot" when its deviation is below this (round-off ~1e-16)
+
+
+def _onehot_rows(m, d, els, condition) -> list[tuple[int, bool, float]]:
+    """(dof, the statement's condition, deviation from one-hot) for every dof of a MuJoCo model."""
+    from kane import cases
+
+    u, w = cases.mujoco_partials(m, d, els)
+    return [(g, bool(condition(m, d, g, els)), cases.onehot_deviation(u[g], w[g])) for g in range(m.nv)]
+
+
+def _mj_model(xml: str, qpos=None):
+    import mujoco
+
+    m = mujoco.MjModel.from_xml_string(xml)
+    d = mujoco.MjData(m)
+    if qpos is not None:
+        d.qpos[:] = qpos
+    mujoco.mj_forward(m, d)
+    els = [b for b in range(1, m.nbody) if m.body(b).name.startswith("e")]
+    return m, d, els
+
+
+def _free_box_rotated():
+    from kane.mjscene import BoxBodySpec, box_body_mjcf
+
+    q = np.array([0.9, 0.2, -0.3, 0.25])
+    q /= np.linalg.norm(q)
+    return _mj_model(box_body_mjcf(BoxBodySpec(quat0=tuple(q))))
+
+
+_EQ23_CASES = {
+    "free box, 8 elements, rotated": _free_box_rotated,
+    "joint chain: slides along x and (1,1,0), hinges, a subtree slide": lambda: _mj_model(
+        __import__("kane.cases", fromlist=["x"]).joint_zoo_mjcf(), [0.1, 0.2, 0.3, 0.4, 0.05]),
+}
+
+
+def _clause_residual(rows, clause: str):
+    """Clause (a): largest deviation over the dofs that meet the condition; clause (b): number
+    of dofs outside the condition that look one-hot. Returns (residual, tolerance, cex row)."""
+    if clause == "a":
+        hits = [(dev, g) for g, cond, dev in rows if cond]
+        worst = max(hits, default=(0.0, None))
+        return worst[0], 1e-12, worst[1], len(hits)
+    bad = [g for g, cond, dev in rows if not cond and dev <= _ONEHOT_SEEN]
+    return float(len(bad)), 0.0, (bad[0] if bad else None), sum(not c for _, c, _ in rows)
+
+
+def _eq23_corrected(case: str, clause: str, condition=None):
+    """Eq. (23)* clause (a) or (b) on a MuJoCo model; ``condition`` defaults to the statement's
+    :func:`kane.cases.world_axis_translation` (a test passes a broken one to see the check fail)."""
+
     def fn(**_):
-        import mujoco
+        from kane import cases
 
-        from kane.mjscene import BoxBodySpec, box_body_mjcf
+        m, d, els = _EQ23_CASES[case]()
+        rows = _onehot_rows(m, d, els, condition or cases.world_axis_translation)
+        r, tol, g, n = _clause_residual(rows, clause)
+        cex = None if g is None else {"claim_id": "eq23.corrected", "kind": "jacobian", "case": case, "dof": int(g),
+                                      "deviation": float(dict((k, dv) for k, _, dv in rows)[g])}
+        what = ("largest deviation from one-hot over the speeds that meet the condition" if clause == "a"
+                else "number of speeds outside the condition whose partial velocities look one-hot (deviation <= 1e-9)")
+        return _result("eq23.corrected", case, Route.MUJOCO, r, tol,
+                       {"speeds": f"{n} of {m.nv} dofs " + ("meet" if clause == "a" else "fail") + " the condition",
+                        "condition": "translation along a world coordinate axis by a joint carrying every element (model structure)",
+                        "source": "mujoco.mj_jac at element centroids"}, what, cex)
 
-        cid = "eq23.corrected" if corrected else "eq23"
-        q = np.array([0.9, 0.2, -0.3, 0.25])
-        q /= np.linalg.norm(q)
-        m = mujoco.MjModel.from_xml_string(box_body_mjcf(BoxBodySpec(quat0=tuple(q))))
-        d = mujoco.MjData(m)
-        mujoco.mj_forward(m, d)
-        worst = 0.0
-        cex = None
-        jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
-        for b in range(2, m.nbody):
-            mujoco.mj_jac(m, d, jp, jr, d.xipos[b], b)
-            # MuJoCo free joint: dofs 0-2 translate (world axes), 3-5 rotate (body axes)
-            dofs = range(3) if corrected else range(6)
-            for g in dofs:
-                col = jp[:, g]
-                onehot = np.zeros(3)
-                onehot[np.argmax(np.abs(col))] = 1.0
-                dev = max(np.abs(np.abs(col) - onehot).max(), np.abs(jr[:, g]).max())
-                if dev > worst:
-                    worst = dev
-                    cex = {"claim_id": cid, "kind": "jacobian", "body": int(b), "dof": int(g), "u_partial": col.tolist(),
-                           "omega_partial": jr[:, g].tolist()}
-        return _result(cid, "free box, 8 elements, rotated", Route.MUJOCO, worst, 1e-12,
-                       {"speeds": "translational dofs only" if corrected else "all 6 free-joint dofs (MuJoCo qvel)",
+    return fn
+
+
+def _eq23(clause: str):
+    def fn(**_):
+        m, d, els = _free_box_rotated()
+        rows = _onehot_rows(m, d, els, lambda *_: True)
+        dofs = range(3) if clause == "trans" else range(3, 6)  # MuJoCo free joint: 0-2 world translations, 3-5 rotations
+        worst = max((rows[g][2], g) for g in dofs)
+        cex = {"claim_id": "eq23", "kind": "jacobian", "case": "free box, 8 elements, rotated", "dof": int(worst[1]),
+               "deviation": float(worst[0])}
+        return _result("eq23", "free box, 8 elements, rotated", Route.MUJOCO, worst[0], 1e-12,
+                       {"speeds": "MuJoCo free joint " + ("translational dofs (world axes)" if clause == "trans" else "rotational dofs"),
                         "source": "mujoco.mj_jac at element centroids"},
                        "largest deviation of a partial velocity from one-hot (or of omega_{i,gamma} from 0)", cex)
 
     return fn
 
 
-CHECKS.append(CheckSpec("eq23", "free box, 8 elements, rotated", Route.MUJOCO.value, _eq23(False), True))
-CHECKS.append(CheckSpec("eq23.corrected", "free box, 8 elements, rotated", Route.MUJOCO.value, _eq23(True), True))
+def _eq23_pinocchio(clause: str):
+    """Pinocchio's free flyer: its translational speeds are the body-frame linear velocity, so
+    their partial velocities are the base's axes in the world: one-hot while the base is
+    axis-aligned (clause a), not once it is rotated (clause b); rotations never (clause b)."""
+
+    def fn(**_):
+        from kane import cases
+
+        pts = np.array([[0.1, 0.05, -0.07], [-0.1, 0.2, 0.1], [0.05, -0.15, 0.2]])
+        q = np.array([0.9, 0.2, -0.3, 0.25])
+        q /= np.linalg.norm(q)
+        from kane.mjscene import mat_from_quat
+
+        rows = []
+        for label, R in (("axis-aligned", np.eye(3)), ("rotated", mat_from_quat(q))):
+            u, w = cases.pinocchio_partials(R, pts)
+            for g in range(6):
+                axis = R[:, g] if g < 3 else None  # the statement's condition: a world coordinate axis
+                cond = axis is not None and abs(np.abs(axis).max() - 1.0) < cases.ONEHOT_TOL
+                rows.append((f"{label} base, speed {g}", cond, cases.onehot_deviation(u[g], w[g])))
+        r, tol, g, n = _clause_residual(rows, clause)
+        cex = None if g is None else {"claim_id": "eq23.corrected", "kind": "jacobian", "case": "pinocchio free flyer", "speed": g}
+        return _result("eq23.corrected", "Pinocchio free flyer (body-frame speeds), axis-aligned and rotated base", Route.PINOCCHIO,
+                       r, tol, {"speeds": f"{n} of 12 (6 speeds x 2 orientations) " + ("meet" if clause == "a" else "fail") + " the condition",
+                                "source": "pinocchio.getFrameJacobian(LOCAL_WORLD_ALIGNED) at 3 points"},
+                       "clause (a): largest deviation where the condition holds; (b): speeds outside it that look one-hot", cex)
+
+    return fn
+
+
+def _eq23_hyp(clause: str):
+    """Random trees of 1-4 bodies on random slide/hinge/ball/free joints at random configurations."""
+
+    def fn(quick=True, seed=0, **_):
+        import mujoco
+        from hypothesis import given, settings
+        from hypothesis import strategies as st
+
+        from kane import cases
+
+        worst = {"r": 0.0, "n": 0, "dofs": 0, "cex": None}
+
+        @settings(max_examples=25 if quick else 120, database=None, deadline=None, derandomize=True)
+        @given(st.integers(0, 2**31 - 1), st.integers(1, 4))
+        def prop(s, nb):
+            rng = np.random.default_rng(s + seed)
+            xml = cases.random_tree_mjcf(rng, nb)
+            m = mujoco.MjModel.from_xml_string(xml)
+            d = mujoco.MjData(m)
+            d.qpos[:] = m.qpos0 + 0.0
+            for j in range(m.njnt):  # random configuration: slides and hinges move, balls/free stay valid
+                if m.jnt_type[j] in (mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_HINGE):
+                    d.qpos[m.jnt_qposadr[j]] = rng.uniform(-1, 1)
+            mujoco.mj_forward(m, d)
+            els = list(range(1, m.nbody))
+            rows = _onehot_rows(m, d, els, cases.world_axis_translation)
+            r, _, g, n = _clause_residual(rows, clause)
+            worst["n"] += 1
+            worst["dofs"] += n
+            if r > worst["r"]:
+                worst.update(r=r, cex={"claim_id": "eq23.corrected", "kind": "jacobian", "seed": int(s + seed), "bodies": int(nb),
+                                       "dof": int(g), "mjcf": xml})
+
+        prop()
+        tol = 1e-12 if clause == "a" else 0.0
+        return _result("eq23.corrected", "random trees of 1-4 bodies, random joints and configurations", Route.HYPOTHESIS,
+                       worst["r"], tol, {"examples": worst["n"], "speeds tried": worst["dofs"],
+                                         "joints": "free, slide (coordinate or random axis), hinge, ball; root unrotated half the time"},
+                       "clause (a): largest deviation where the condition holds; (b): largest count of other speeds that look one-hot",
+                       worst["cex"])
+
+    return fn
+
+
+CHECKS.append(CheckSpec("eq23", "free box, 8 elements, rotated", Route.MUJOCO.value, _eq23("rot"), True, "rot"))
+CHECKS.append(CheckSpec("eq23", "free box, 8 elements, rotated", Route.MUJOCO.value, _eq23("trans"), True, "trans"))
+for _case in _EQ23_CASES:
+    for _k in ("a", "b"):
+        CHECKS.append(CheckSpec("eq23.corrected", _case, Route.MUJOCO.value, _eq23_corrected(_case, _k), True, _k))
+for _k in ("a", "b"):
+    CHECKS.append(CheckSpec("eq23.corrected", "Pinocchio free flyer (body-frame speeds), axis-aligned and rotated base",
+                            Route.PINOCCHIO.value, _eq23_pinocchio(_k), True, _k))
+    CHECKS.append(CheckSpec("eq23.corrected", "random trees of 1-4 bodies, random joints and configurations",
+                            Route.HYPOTHESIS.value, _eq23_hyp(_k), False, _k))
 
 
 # --- Eq. (11), Eq. (15), Eq. (12) along MuJoCo trajectories ---------------------------------
@@ -408,6 +608,7 @@ def _tol(case: str) -> float:
     return 1e-5 if _TRAJ_CASES[case].get("floor") else 1e-10
 
 
+@lru_cache(maxsize=16)
 def _traj(case: str, integrator: str = "Euler", steps: int = 600):
     from kane.mjscene import BoxBodySpec, simulate_elements
 
@@ -450,10 +651,132 @@ def _eq11(case: str, translational: bool, integrator: str = "Euler", corrected: 
 
 
 for _case in _TRAJ_CASES:
-    CHECKS.append(CheckSpec("eq11.corrected", _case, Route.MUJOCO.value, _eq11(_case, True, corrected=True), True))
-    CHECKS.append(CheckSpec("eq11", _case, Route.MUJOCO.value, _eq11(_case, False), _case.startswith("free")))
+    CHECKS.append(CheckSpec("eq11.corrected", _case, Route.MUJOCO.value, _eq11(_case, True, corrected=True), True, "b"))
+    CHECKS.append(CheckSpec("eq11", _case, Route.MUJOCO.value, _eq11(_case, False), _case.startswith("free"), "rot"))
+    CHECKS.append(CheckSpec("eq11", _case, Route.MUJOCO.value, _eq11(_case, True), _case.startswith("free"), "trans"))
 CHECKS.append(CheckSpec("eq11", "box striking a plane (RK4)", Route.MUJOCO.value,
-                        _eq11("box striking a plane", True, "RK4"), False))
+                        _eq11("box striking a plane", True, "RK4"), False, "fd"))
+
+
+# --- Eq. (11)*: true accelerations, off-centre and articulated bodies, Euler vs RK4 ---------
+
+def _free_cases():
+    from kane.cases import OFFSET, FreeSystem
+
+    return {
+        "free box, joint origin offset (0.1, 0.05, -0.07) m from its centre of mass": FreeSystem(offset=OFFSET),
+        "free box with a hinged flap (articulated)": FreeSystem(flap=True),
+        "box striking a plane": FreeSystem(floor=True, height=0.4, v0=(0.5, 0.0, -1.0), omega0=(0.5, 2.0, 0.0)),
+    }
+
+
+_FREE_NAMES = list(_free_cases())
+_OFF, _FLAP, _PLANE = _FREE_NAMES
+_ORDER_TOL = 0.1  # |p - 1| of the fitted order: the O(delta^2) term shifts p by ~delta/T_dyn ~ 1e-3 here
+_EXACT_FLOOR = 1e-8  # a residual below this is round-off (exact), not an O(delta) term
+
+
+def _fs_assumptions(s, **extra):
+    return {"system": "box 0.2 x 0.3 x 0.5 m in 2 cells" + (" + hinged flap" if s.flap else ""),
+            "joint origin to centre of mass": "offset " + str(tuple(s.offset)) + " m (body frame)" if any(s.offset) else "at the box's centre of mass",
+            "speeds": "translational x, y, z (MuJoCo free joint, world axes)", "forces": "gravity" + (" + contact" if s.floor else ""),
+            "integrator": s.integrator, "tolerance": _TOL_NOTE if s.floor else "1e-10 relative (double precision)", **extra}
+
+
+def _eq11_fs(case: str, clause: str, integrator: str = "Euler", cid: str = "eq11.corrected"):
+    """Eq. (11) translational on a :class:`kane.cases.FreeSystem`: clause ``a`` true accelerations;
+    ``d`` (or ``fd``) forward differences at delta = 1e-3; ``c``/``e`` fitted order over 3 deltas."""
+    from dataclasses import replace
+
+    label = case + ("" if integrator == "Euler" else f" ({integrator})")
+
+    def fn(quick=True, **_):
+        from kane import cases
+
+        s = replace(_free_cases()[case], integrator=integrator)
+        dur = 0.3 if quick else 0.6
+        cex = {"claim_id": cid, "kind": "trajectory", "case": label, "integrator": integrator}
+        if clause in ("c", "e"):
+            p, dts, res = cases.observed_order(s, dur)
+            if clause == "c":  # O(delta): a first-order residual, not round-off
+                r, tol = (abs(p - 1.0) if min(res) > _EXACT_FLOOR else np.inf), _ORDER_TOL
+                what = "|p - 1|, p the fitted order of the forward-difference residual r ~ delta^p"
+            else:  # not exact and not shrinking like delta
+                r, tol = (p if min(res) > 1e-3 else np.inf), 0.5
+                what = "fitted order p of the residual (<= 0.5: not shrinking like delta; every r > 1e-3: not exact)"
+            return _result(cid, label, Route.MUJOCO, r, tol,
+                           _fs_assumptions(s, deltas=dts, residuals=[float(f"{x:.4g}") for x in res], order=round(p, 4)),
+                           what, {**cex, "deltas": dts, "residuals": res})
+        true_acc = clause == "a"
+        r = cases.eq11_translational(cases.record(s, dur), true_acc=true_acc)
+        tol = 1e-5 if s.floor else 1e-10
+        what = ("largest |sum F - sum M a| / sum|F| with MuJoCo's true centroid accelerations (mj_objectAcceleration)" if true_acc
+                else "largest |eq. (11) residual| / sum|F| with (v^{t+1} - v^t)/delta, delta = 1e-3")
+        return _result(cid, label, Route.MUJOCO, r, tol, _fs_assumptions(s, delta=s.dt), what, cex)
+
+    return fn
+
+
+for _case in (_OFF, _FLAP, _PLANE):
+    CHECKS.append(CheckSpec("eq11.corrected", _case, Route.MUJOCO.value, _eq11_fs(_case, "a"), _case != _PLANE, "a"))
+for _case in (_OFF, _FLAP):
+    CHECKS.append(CheckSpec("eq11.corrected", _case, Route.MUJOCO.value, _eq11_fs(_case, "c"), True, "c"))
+    CHECKS.append(CheckSpec("eq11.corrected", _case + " (RK4)", Route.MUJOCO.value, _eq11_fs(_case, "d", "RK4"), True, "d"))
+    CHECKS.append(CheckSpec("eq11", _case, Route.MUJOCO.value, _eq11_fs(_case, "d", cid="eq11"), _case == _OFF, "fd"))
+CHECKS.append(CheckSpec("eq11.corrected", "box striking a plane (RK4)", Route.MUJOCO.value, _eq11_fs(_PLANE, "e", "RK4"), True, "e"))
+
+
+def _eq11_hyp(clause: str):
+    """Random free systems: box size, cells, offset, flap, initial motion (clause a, b, c or d)."""
+
+    def fn(quick=True, seed=0, **_):
+        from hypothesis import given, settings
+        from hypothesis import strategies as st
+
+        from kane import cases
+
+        worst = {"r": -np.inf, "n": 0, "cex": None}
+        fl = st.floats(-1.0, 1.0)
+
+        @settings(max_examples=8 if quick else 25, database=None, deadline=None, derandomize=True)
+        @given(st.tuples(st.floats(0.05, 0.3), st.floats(0.05, 0.3), st.floats(0.05, 0.3)), st.sampled_from([(1, 1, 1), (2, 1, 1), (2, 2, 1)]),
+               st.tuples(fl, fl, fl), st.booleans(), st.tuples(fl, fl, fl), st.tuples(fl, fl, fl))
+        def prop(h, div, off, flap, w0, v0):
+            off = np.asarray(off) * 0.2
+            if clause == "b":
+                off, flap = np.zeros(3), False  # the clause's condition: a centred single body
+            if clause == "c" and not flap and np.linalg.norm(off) < 0.02:
+                off = np.array([0.02, 0.0, 0.0])  # the clause's condition: off-centre (or articulated)
+            if clause == "c" and np.linalg.norm(w0) < 0.2:
+                w0 = (0.2, 0.0, 0.0)  # ... and spinning
+            s = cases.FreeSystem(half_extents=h, divisions=div, offset=tuple(off), flap=flap, omega0=tuple(4 * np.asarray(w0)),
+                                 v0=v0, integrator="RK4" if clause == "d" else "Euler")
+            if clause == "c":  # at most first order: p >= 1 - tol where the residual is not round-off
+                p, _, res = cases.observed_order(s, 0.1)
+                r = 1.0 - p if min(res) > _EXACT_FLOOR else 0.0
+            else:
+                r = cases.eq11_translational(cases.record(s, 0.1), true_acc=clause == "a")
+            worst["n"] += 1
+            if r > worst["r"]:
+                worst.update(r=r, cex={"claim_id": "eq11.corrected", "kind": "trajectory", "half_extents": list(h), "divisions": list(div),
+                                       "offset": off.tolist(), "flap": bool(flap), "omega0": list(s.omega0), "v0": list(v0),
+                                       "integrator": s.integrator})
+
+        prop()
+        tol = _ORDER_TOL if clause == "c" else 1e-10
+        return _result("eq11.corrected", "random free systems (size, cells, offset, flap, motion)", Route.HYPOTHESIS, worst["r"], tol,
+                       {"examples": worst["n"], "duration": "0.1 s at delta = 1e-3 (and 5e-4, 2.5e-4 for the order)",
+                        "clause condition": {"a": "any", "b": "centred single body, Euler", "c": "off-centre or flap, Euler",
+                                             "d": "any, RK4, no contact"}[clause]},
+                       {"a": "largest Newton residual with true accelerations", "b": "largest Euler forward-difference residual",
+                        "c": "largest 1 - p of the fitted order p (the residual shrinks at least like delta)", "d": "largest RK4 forward-difference residual"}[clause], worst["cex"])
+
+    return fn
+
+
+for _k in ("a", "b", "c", "d"):
+    CHECKS.append(CheckSpec("eq11.corrected", "random free systems (size, cells, offset, flap, motion)", Route.HYPOTHESIS.value,
+                            _eq11_hyp(_k), False, _k))
 
 
 def _eq15(case: str, bound: str):
@@ -532,10 +855,72 @@ def _eq12_traj(corrected: bool, internal: bool = False):
     return fn
 
 
-CHECKS.append(CheckSpec("eq12", "cube spinning about its diagonal, 2 elements", Route.MUJOCO.value, _eq12_traj(False), True))
-CHECKS.append(CheckSpec("eq12.corrected", "cube spinning about its diagonal, 2 elements", Route.MUJOCO.value, _eq12_traj(True), True))
+CHECKS.append(CheckSpec("eq12", "cube spinning about its diagonal, 2 elements", Route.MUJOCO.value, _eq12_traj(False), True, "rot"))
+CHECKS.append(CheckSpec("eq12.corrected", "cube spinning about its diagonal, 2 elements", Route.MUJOCO.value, _eq12_traj(True), True, "a"))
 CHECKS.append(CheckSpec("eq12", "cube spinning about its diagonal, 2 elements, inter-element forces in Psi", Route.MUJOCO.value,
-                        _eq12_traj(False, internal=True), False))
+                        _eq12_traj(False, internal=True), True, "internal"))
+
+
+def _eq12_translational(case: str, corrected: bool, dofs: tuple = (0, 1, 2)):
+    """Eq. (12) for the translational speeds x, y, z along a MuJoCo trajectory: Psi of Eq. (29) with
+    MuJoCo's partial angular velocities omega_{i,gamma} (mj_jac at each frame), against the
+    paper's bound (B.1.2 reading omega_gamma := |omega|) or the corrected one (|omega_{i,gamma}|).
+    ``dofs``: the free joint's dofs taken as the speeds (a test passes rotational ones)."""
+
+    def fn(quick=True, **_):
+        import mujoco
+
+        from kane.mjscene import BoxBodySpec, box_body_mjcf, mat_from_quat
+
+        cid = "eq12.corrected" if corrected else "eq12"
+        steps = 300 if quick else 800
+        spec = BoxBodySpec(**_TRAJ_CASES[case])
+        tr = _traj(case, "Euler", steps)
+        m = mujoco.MjModel.from_xml_string(box_body_mjcf(spec))
+        d = mujoco.MjData(m)
+        d.qvel[:3] = spec.v0
+        d.qvel[3:6] = mat_from_quat(spec.quat0).T @ np.asarray(spec.omega0, float)
+        els = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"e{i}") for i in range(len(tr.mass))]
+        jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+        f = terms.loss_functions("numpy")
+        worst, slack = -np.inf, np.inf
+        scale = np.abs(tr.force).sum((1, 2)).max()
+        for t in range(steps):  # the same Euler steps as simulate_elements: the states agree frame by frame
+            mujoco.mj_forward(m, d)
+            wg = np.zeros((len(dofs), len(els), 3))  # [gamma, element, 3]: partial angular velocities
+            for i, b in enumerate(els):
+                mujoco.mj_jac(m, d, jp, jr, d.xipos[b], b)
+                wg[:, i] = jr[:, list(dofs)].T
+            I = tr.inertia[t]
+            Ls = np.einsum("nab,b->na", I, tr.alpha[t]) + np.cross(tr.omega[t], np.einsum("nab,b->na", I, tr.omega[t]))
+            psi = np.einsum("na,gna->g", tr.moment[t] - Ls, wg)
+            a, wabs = np.linalg.norm(tr.alpha[t]), np.linalg.norm(tr.omega[t])
+            if corrected:
+                wgn = np.linalg.norm(wg, axis=2)  # |omega_{i,gamma}| [gamma, element]
+                B = f["corrected_bound_term"][1](wgn, tr.tau[None], tr.force_abs[t][None], tr.mass[None], a, wabs).sum(1)
+            else:
+                B = f["paper_bound_term"][1](tr.tau[None], np.linalg.norm(tr.force[t], axis=1)[None], wabs, tr.mass[None], a).sum(1)
+                B = np.broadcast_to(B, (len(dofs),))
+            # corrected: Psi = 0 and B = 0 (zero slack); paper: |Psi| <= B
+            r = (np.abs(psi).max() + np.abs(B).max()) if corrected else (np.abs(psi) - B).max()
+            worst = max(worst, float(r) / scale)
+            slack = min(slack, float(B.min()) / scale)
+            mujoco.mj_Euler(m, d)
+        tol = _tol(case)
+        return _result(cid, case, Route.MUJOCO, worst, tol,
+                       {"speeds": "translational x, y, z (MuJoCo free joint)", "omega_{i,gamma}": "mujoco.mj_jac at element centroids",
+                        "loads in Psi": "external (gravity" + (" + contact)" if spec.floor else ")"), "integrator": "Euler", "frames": steps,
+                        "bound": "corrected (|omega_{i,gamma}|)" if corrected else "paper's (omega_gamma := |omega|, B.1.2 reading)",
+                        "tolerance": _TOL_NOTE},
+                       ("largest (|Psi| + bound) / sum|F|: both vanish" if corrected else
+                        f"largest (|Psi| - bound) / sum|F|; smallest slack bound / sum|F| = {slack:.3g} (true but loose)"), None)
+
+    return fn
+
+
+for _case in _TRAJ_CASES:
+    CHECKS.append(CheckSpec("eq12", _case, Route.MUJOCO.value, _eq12_translational(_case, False), _case.startswith("free"), "trans"))
+    CHECKS.append(CheckSpec("eq12.corrected", _case, Route.MUJOCO.value, _eq12_translational(_case, True), _case.startswith("free"), "b"))
 
 
 def _eq36_disc(corrected: bool):
@@ -559,8 +944,179 @@ def _eq36_disc(corrected: bool):
     return fn
 
 
-CHECKS.append(CheckSpec("eq36", "flywheel disc element (MuJoCo cylinder)", Route.MUJOCO.value, _eq36_disc(False), True))
-CHECKS.append(CheckSpec("eq36.corrected", "flywheel disc element (MuJoCo cylinder)", Route.MUJOCO.value, _eq36_disc(True), True))
+CHECKS.append(CheckSpec("eq36", "flywheel disc element (MuJoCo cylinder)", Route.MUJOCO.value, _eq36_disc(False), True, "flat"))
+CHECKS.append(CheckSpec("eq36.corrected", "flywheel disc element (MuJoCo cylinder)", Route.MUJOCO.value, _eq36_disc(True), True, "a"))
+
+
+def _point_cell(h, points_per_axis: int = 2):
+    """(masses, centred offsets) of one partition_box cell of half extents h."""
+    from kane.elements import partition_box
+
+    (e,) = partition_box(h, (1, 1, 1), mass=1.0, points_per_axis=points_per_axis)
+    return e.masses, e.offsets
+
+
+def _inertia_ratio_engines(masses, offsets) -> list[tuple[str, float]]:
+    """I_zz / (M tau^2) of a point-mass element from MuJoCo and Pinocchio (kane.counterexamples replay)."""
+    from kane.counterexamples import replay
+
+    cex = {"claim_id": "eq36.corrected", "kind": "element",
+           "sample": {"masses": list(map(float, masses)), "offsets": np.asarray(offsets).tolist(),
+                      "forces": np.zeros((len(masses), 3)).tolist(), "omega": [0, 0, 0], "alpha": [0, 0, 0]}}
+    return [(eng, lhs / rhs) for eng, lhs, rhs in replay(cex).rows]  # rhs = M tau^2 for eq36.corrected
+
+
+_POINT_CASES = {  # case -> (half extents, points per axis, target ratio I_zz / (M tau^2), reason of the tolerance)
+    "8 corner masses of a cube cell (partition_box)": ((1.0, 1.0, 1.0), 2, 2 / 3),
+    "8 corner masses of a flat cell 1 : 1 : 1e-4 (partition_box)": ((1.0, 1.0, 1e-4), 2, 1.0),
+}
+#: replay spheres of radius 1e-4 m add (2/5)(1e-4)^2 / tau^2 <= 8e-9 (tau >= 0.7 m); the flat
+#: cell's ratio is below 1 by (c/2)^2 / tau^2 = 5e-9
+_POINT_TOL = 1e-7
+
+
+def _eq36_points(case: str, corrected: bool):
+    def fn(**_):
+        h, ppa, target = _POINT_CASES[case]
+        masses, offs = _point_cell(h, ppa)
+        ratios = _inertia_ratio_engines(masses, offs)
+        cid = "eq36.corrected" if corrected else "eq36"
+        cex = {"claim_id": cid, "kind": "element", "sample": {"masses": masses.tolist(), "offsets": offs.tolist(),
+               "forces": np.zeros((len(masses), 3)).tolist(), "omega": [0, 0, 0], "alpha": [0, 0, 0]}}
+        if corrected:  # clause (c): the ratio the statement names
+            r = max(abs(x - target) for _, x in ratios)
+            return _result(cid, case, Route.MUJOCO, r, _POINT_TOL,
+                           {"element": f"{len(masses)} equal point masses at +-h/2 in a cell of half extents h = {tuple(h)} m",
+                            "statement": f"I_zz / (M tau^2) = {target:.6g}", "engines": {e: round(x, 9) for e, x in ratios}},
+                           "largest |I_zz / (M tau^2) - stated ratio| over MuJoCo and Pinocchio", None)
+        r = max(x for _, x in ratios) - 0.4
+        return _result(cid, case, Route.MUJOCO, r, 1e-12,
+                       {"element": f"{len(masses)} equal point masses (the paper's element model)", "engines": {e: round(x, 9) for e, x in ratios}},
+                       "I_zz / (M tau^2) - 2/5", cex)
+
+    return fn
+
+
+CHECKS.append(CheckSpec("eq36", list(_POINT_CASES)[0], Route.MUJOCO.value, _eq36_points(list(_POINT_CASES)[0], False), True, "flat"))
+for _case in _POINT_CASES:
+    CHECKS.append(CheckSpec("eq36.corrected", _case, Route.MUJOCO.value, _eq36_points(_case, True), True, "c"))
+
+
+def _eq36_ring(**_):
+    ring = np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]], float)
+    ratios = _inertia_ratio_engines(np.ones(4), ring)
+    return _result("eq36.corrected", "ring of 4 equal point masses (bound attained)", Route.MUJOCO, max(abs(x - 1) for _, x in ratios),
+                   _POINT_TOL, {"element": "4 point masses on a circle of radius 1 m", "engines": {e: round(x, 9) for e, x in ratios}},
+                   "|I_zz / (M tau^2) - 1|: the bound M tau^2 is attained", None)
+
+
+CHECKS.append(CheckSpec("eq36.corrected", "ring of 4 equal point masses (bound attained)", Route.MUJOCO.value, _eq36_ring, True, "a"))
+
+
+def _eq36_sphere(**_):
+    from kane import cases
+
+    r = cases.sphere_ratio(0.1) - 0.4
+    return _result("eq36", "uniform solid sphere (MuJoCo)", Route.MUJOCO, r, 1e-12,
+                   {"element": "uniform solid sphere of radius tau = 0.1 m", "source": "MuJoCo's geom inertia"},
+                   "I / (M tau^2) - 2/5 (the sphere attains the paper's bound)", None)
+
+
+CHECKS.append(CheckSpec("eq36", "uniform solid sphere (MuJoCo)", Route.MUJOCO.value, _eq36_sphere, True, "solid"))
+
+
+def _eq36_solid_hyp(kind: str, k: float, cid: str, clause: str):
+    """Hypothesis over uniform solid boxes (half extents) or tetrahedra (vertices): I_max / (M tau^2) - k."""
+
+    def fn(quick=True, seed=0, **_):
+        from hypothesis import assume, given, settings
+        from hypothesis import strategies as st
+
+        from kane import cases
+
+        worst = {"r": -np.inf, "n": 0, "cex": None}
+        side = st.floats(1e-3, 1.0)
+        pt = st.tuples(st.floats(-1, 1), st.floats(-1, 1), st.floats(-1, 1))
+        strat = st.tuples(side, side, side) if kind == "box" else st.tuples(pt, pt, pt, pt)
+
+        @settings(max_examples=60 if quick else 300, database=None, deadline=None, derandomize=True)
+        @given(strat)
+        def prop(x):
+            if kind == "box":
+                ratio = cases.solid_box_ratio(x)
+            else:
+                v = np.asarray(x, float)
+                assume(abs(np.linalg.det(v[1:] - v[0])) > 1e-3)  # a solid, not a degenerate sliver
+                ratio = cases.tetra_ratio(v)
+            worst["n"] += 1
+            if ratio - k > worst["r"]:
+                worst.update(r=ratio - k, cex={"claim_id": cid, "kind": "mujoco_solid", kind: np.asarray(x).tolist()})
+
+        prop()
+        case = "uniform solid boxes, random aspect ratios (MuJoCo)" if kind == "box" else "uniform solid tetrahedra, random vertices (MuJoCo)"
+        return _result(cid, case, Route.HYPOTHESIS, worst["r"], 1e-12,
+                       {"examples": worst["n"], "source": "MuJoCo's geom/mesh inertia", "tau": "largest distance from the mass centre to the solid's boundary",
+                        "bound": f"{k:.6g} M tau^2"}, f"largest I_max / (M tau^2) - {k:.6g}", worst["cex"])
+
+    return fn
+
+
+CHECKS.append(CheckSpec("eq36", "uniform solid boxes, random aspect ratios (MuJoCo)", Route.HYPOTHESIS.value,
+                        _eq36_solid_hyp("box", 0.4, "eq36", "solid"), True, "solid"))
+CHECKS.append(CheckSpec("eq36", "uniform solid tetrahedra, random vertices (MuJoCo)", Route.HYPOTHESIS.value,
+                        _eq36_solid_hyp("tetra", 0.4, "eq36", "solid"), False, "solid"))
+CHECKS.append(CheckSpec("eq36.corrected", "uniform solid boxes, random aspect ratios (MuJoCo)", Route.HYPOTHESIS.value,
+                        _eq36_solid_hyp("box", 1 / 3, "eq36.corrected", "b"), True, "b"))
+
+
+def _eq36_casadi(which: str):
+    """ipopt over half extents a, b, c in [1e-3, 1]: ``box`` maximises the continuum box ratio
+    (sympy integral) minus 1/3 (clause b); ``corners`` maximises the ratio of 8 corner point
+    masses (sympy sum over the points), which clause (c) says approaches 1 (and clause a: <= 1)."""
+
+    def fn(quick=True, seed=0, **_):
+        import casadi as ca
+
+        from kane import cases, codegen
+
+        if which == "box":
+            args, expr = cases.continuum_box_ratio_expr()
+        else:
+            a, b, c = args = sp.symbols("a b c", positive=True)
+            pts = [sp.Matrix([sx * a, sy * b, sz * c]) for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]
+            expr = sum(p[0] ** 2 + p[1] ** 2 for p in pts) / (8 * pts[0].dot(pts[0]))  # M = 8; tau = |corner| (all equal)
+        f = codegen.to_casadi(args, expr)
+        rng = np.random.default_rng(seed)
+        best, arg = -np.inf, None
+        for _ in range(3 if quick else 8):
+            opti = ca.Opti()
+            x = opti.variable(3)
+            opti.subject_to(opti.bounded(1e-3, x, 1.0))
+            opti.minimize(-f(x[0], x[1], x[2]))
+            opti.set_initial(x, rng.uniform(0.05, 1.0, 3))
+            opti.solver("ipopt", {"print_time": False}, {"print_level": 0, "sb": "yes", "max_iter": 300})
+            try:
+                sol = opti.solve()
+                xv = np.asarray(sol.value(x)).ravel()
+            except RuntimeError:
+                xv = np.asarray(opti.debug.value(x)).ravel()
+            v = float(f(*xv))
+            if v > best:
+                best, arg = v, xv
+        if which == "box":
+            return _result("eq36.corrected", "uniform solid box, any aspect ratio (sympy integral)", Route.CASADI, best - 1 / 3, 1e-9,
+                           {"element": "continuum box, density 1, half extents in [1e-3, 1] m", "inertia": "sympy integral of x^2 + y^2 over the box",
+                            "argmax": arg.tolist()}, "ipopt maximum of I_zz / (M tau^2) - 1/3", None)
+        return _result("eq36.corrected", "8 corner point masses, any aspect ratio (sympy sum)", Route.CASADI, 1.0 - best, 1e-5,
+                       {"element": "8 equal masses at (+-a, +-b, +-c), a, b, c in [1e-3, 1] m", "argmax": arg.tolist(),
+                        "tolerance": "c >= 1e-3 keeps the ratio below 1 by up to (c/a)^2 / 2 = 5e-7"},
+                       f"1 - ipopt maximum of I_zz / (M tau^2) (maximum {best:.9g}; clause a bounds it by 1)", None)
+
+    return fn
+
+
+CHECKS.append(CheckSpec("eq36.corrected", "uniform solid box, any aspect ratio (sympy integral)", Route.CASADI.value, _eq36_casadi("box"), True, "b"))
+CHECKS.append(CheckSpec("eq36.corrected", "8 corner point masses, any aspect ratio (sympy sum)", Route.CASADI.value, _eq36_casadi("corners"), True, "c"))
 
 
 # --- Eq. (3), Lemma A.1: analytic systems vs Pinocchio and MuJoCo (kane.crosscheck) -------
@@ -632,7 +1188,7 @@ def run_checks(claim_ids: list[str] | None = None, cases: list[str] | None = Non
                                f"{type(exc).__name__}: {exc}")]
         dt = time.perf_counter() - t0
         for r in res:
-            out.append(r if r.seconds else CheckResult(**{**r.__dict__, "seconds": dt / len(res)}))
+            out.append(CheckResult(**{**r.__dict__, "seconds": r.seconds or dt / len(res), "clause": r.clause or s.clause}))
         if on_progress:
             on_progress(k + 1, len(specs), f"{s.claim_id} / {s.case}")
     return out

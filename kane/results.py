@@ -61,6 +61,9 @@ class CheckResult:
         One line a reader can act on.
     seconds : float
         Wall time of the check.
+    clause : str
+        Key of the clause of the claim (``kane.claims.Claim.clauses``) that this check tries;
+        ``""`` for a claim with a single clause.
     """
 
     claim_id: str
@@ -74,6 +77,7 @@ class CheckResult:
     corrected: str | None = None
     detail: str = ""
     seconds: float = 0.0
+    clause: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (NaN/inf residuals become ``None``)."""

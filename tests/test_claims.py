@@ -74,7 +74,7 @@ def test_refuted_checks_carry_counterexample_and_corrected_statement(results):
             assert r.corrected and r.corrected in CLAIMS
 
 
-def test_translational_eq11_holds_to_machine_precision_on_euler_data(results):
+def test_translational_eq11_holds_to_machine_precision_on_euler_data(results):  # clause (b) of eq11.corrected
     r = [x for x in results if x.claim_id == "eq11.corrected" and "free box" in x.case][0]
     assert r.residual < 1e-12
 
@@ -136,3 +136,109 @@ def test_replay_rejects_malformed_counterexample():
 def test_unknown_claim_id_is_a_clear_error():
     with pytest.raises(ValueError, match="unknown claim id"):
         run_checks(["eq99"])
+
+
+# --- issue 20: every clause of every statement is checked, and the checks can fail ----------
+
+from dataclasses import replace  # noqa: E402
+
+from kane import cases, claims  # noqa: E402
+from kane.claims import CHECKS  # noqa: E402
+from validation.report import build_report  # noqa: E402
+
+
+def test_every_clause_has_a_quick_check_and_every_check_names_a_clause():
+    for cid, claim in CLAIMS.items():
+        keys = [k for k, _ in claim.clause_list()]
+        specs = [s for s in CHECKS if s.claim_id == cid]
+        assert specs, f"{cid} has no check"
+        assert {s.clause for s in specs} <= set(keys), cid
+        for k in keys:
+            assert any(s.clause == k and s.quick for s in specs), f"{cid} clause {k!r} has no quick check"
+
+
+def test_titles_say_what_each_statement_is():
+    for cid, claim in CLAIMS.items():
+        assert "(corrected)" not in claim.title, cid
+        if cid.endswith(".corrected"):
+            assert claim.title != CLAIMS[cid.removesuffix(".corrected")].title
+
+
+def test_no_corrected_clause_unchecked_or_failing_in_the_quick_run(results):
+    rep = build_report(results, CLAIMS)
+    for c in rep["claims"]:
+        if c["id"].endswith(".corrected"):
+            assert [cl["verdict"] for cl in c["clauses"]] == ["holds"] * len(c["clauses"]), c
+    for row in rep["checks"]:
+        assert row["scope"] and (row["corrected"] is None or row["corrected"]["verdict"] == "holds"), row["id"]
+
+
+def test_scope_lines_follow_the_verdicts(results):
+    scope = {c["id"]: c["scope"] for c in build_report(results, CLAIMS)["claims"]}
+    assert scope["eq11"].startswith("refuted for rotational speeds; holds for translational speeds")
+    assert scope["eq36"] == "refuted for flat solids (a disc) and point-mass elements; holds for uniform solid boxes, tetrahedra and spheres"
+    assert scope["eq12"].startswith("refuted for rotational speeds, external loads only in Psi; holds for")
+
+
+# Mutation checks: state a clause wrongly and its check must say refuted.
+
+def _run(fn, **kw):
+    r = fn(quick=True, seed=0, **kw)
+    return r if not isinstance(r, list) else r[0]
+
+
+@pytest.mark.parametrize("clause, condition", [
+    ("a", lambda m, d, g, els: True),  # "every speed is one-hot"
+    ("a", lambda m, d, g, els: int(m.jnt_type[m.dof_jntid[g]]) == 2),  # "every slide is", dropping "along a world axis"
+    ("b", lambda m, d, g, els: False),  # "no speed is", dropping the "if" direction
+])
+def test_eq23_corrected_fails_when_its_condition_is_misstated(clause, condition):
+    case = "joint chain: slides along x and (1,1,0), hinges, a subtree slide"
+    assert _run(claims._eq23_corrected(case, clause)).verdict == "holds"
+    assert _run(claims._eq23_corrected(case, clause, condition)).verdict == "refuted"
+
+
+def test_eq11_corrected_clauses_fail_when_misstated(monkeypatch):
+    # (b) "Euler exact" moved to the off-centre body; (d) "RK4 exact" moved to contact
+    assert _run(claims._eq11_fs(claims._OFF, "d")).verdict == "refuted"
+    assert _run(claims._eq11_fs(claims._PLANE, "d", "RK4")).verdict == "refuted"
+    # (e) "not shrinking like delta" moved to the off-centre body under Euler (which is O(delta))
+    assert _run(claims._eq11_fs(claims._OFF, "e")).verdict == "refuted"
+    # (c) "O(delta), nonzero" moved to the centred body (which is exact)
+    real = claims._free_cases()
+    monkeypatch.setattr(claims, "_free_cases", lambda: {**real, claims._OFF: replace(real[claims._OFF], offset=(0.0, 0.0, 0.0))})
+    assert _run(claims._eq11_fs(claims._OFF, "c")).verdict == "refuted"
+
+
+def test_offset_free_body_residual_is_first_order_and_rk4_exact():
+    """The review's numbers: offset (0.1, 0.05, -0.07) m, Euler, delta = 1e-3: 3.3e-4, halving with delta."""
+    p, dts, res = cases.observed_order(cases.FreeSystem(offset=cases.OFFSET), 0.6)
+    assert res[0] == pytest.approx(3.3e-4, rel=0.05) and abs(p - 1) < 0.01
+    rk4 = cases.record(cases.FreeSystem(offset=cases.OFFSET, integrator="RK4"), 0.6)
+    assert cases.eq11_translational(rk4) < 1e-11
+
+
+def test_eq12_corrected_zero_slack_fails_for_rotational_speeds():
+    case = "free box in gravity, spinning"
+    assert _run(claims._eq12_translational(case, True)).verdict == "holds"
+    assert _run(claims._eq12_translational(case, True, dofs=(3, 4, 5))).verdict == "refuted"
+
+
+def test_eq36_corrected_box_clauses_fail_when_misstated(monkeypatch):
+    # (b) with the paper's sphere constant replaced by a smaller one: solid boxes exceed 0.3
+    assert _run(claims._eq36_solid_hyp("box", 0.3, "eq36.corrected", "b")).verdict == "refuted"
+    # (c) "point-mass boxes obey (1/3)": the cube's corner masses give 2/3
+    name = list(claims._POINT_CASES)[0]
+    h, ppa, _ = claims._POINT_CASES[name]
+    monkeypatch.setitem(claims._POINT_CASES, name, (h, ppa, 1 / 3))
+    assert _run(claims._eq36_points(name, True)).verdict == "refuted"
+
+
+def test_solid_shapes_against_textbook_ratios():
+    """I_max / (M tau^2): box (a^2 + b^2) / 3 / (a^2 + b^2 + c^2); sphere 2/5; regular tetrahedron
+    (edge s): I = M s^2 / 20, tau^2 = 3 s^2 / 8, so 2/15 (any dynamics textbook)."""
+    assert cases.solid_box_ratio([0.1, 0.2, 0.3]) == pytest.approx((0.2**2 + 0.3**2) / 3 / 0.14, rel=1e-9)
+    assert cases.sphere_ratio(0.3) == pytest.approx(0.4, rel=1e-12)
+    tet = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float)
+    assert cases.tetra_ratio(tet) == pytest.approx(2 / 15, rel=1e-9)
+    assert cases.point_box_ratio([1, 1, 1]) == pytest.approx(2 / 3, rel=1e-12)

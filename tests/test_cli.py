@@ -193,7 +193,7 @@ def test_json_report_schema(monkeypatch, capsys, tmp_path):
     code, out, err = _run(capsys, "--json", str(path))
     assert code == 1
     rep = json.loads(path.read_text())
-    assert set(rep) == {"checks", "summary", "environment"}
+    assert set(rep) == {"checks", "claims", "summary", "environment"}
     keys = {
         "id",
         "claim",
@@ -213,9 +213,18 @@ def test_json_report_schema(monkeypatch, capsys, tmp_path):
     assert refuted["counterexample"] == _CEX
     assert refuted["corrected"] == {
         "id": "eq34.corrected",
+        "title": _CLAIMS["eq34.corrected"].title,
         "statement": _CLAIMS["eq34.corrected"].statement,
         "verdict": "holds",
+        "scope": "holds for every case tried",
     }
+    # one scope line per claim, in the rows and in the claims section, from the verdicts
+    assert refuted["scope"] == "refuted for every case tried"
+    assert [(c["id"], c["verdict"], c["scope"]) for c in rep["claims"]] == [
+        ("eq3", "holds", "holds for every case tried"),
+        ("eq34", "refuted", "refuted for every case tried"),
+        ("eq34.corrected", "holds", "holds for every case tried"),
+    ]
     assert rep["checks"][0]["counterexample"] is None and rep["checks"][0]["corrected"] is None
     assert [p.name for p in tmp_path.iterdir()] == ["report.json"]  # no temp file left behind
 

@@ -5,7 +5,11 @@ Schema (``mdgs validate --json PATH``)::
     {
       "checks": [
         {"id", "claim", "case", "route", "verdict", "residual", "tolerance",
-         "assumptions", "counterexample", "corrected", "detail", "seconds"}
+         "assumptions", "counterexample", "corrected", "detail", "seconds", "clause", "scope"}
+      ],
+      "claims": [
+        {"id", "title", "equation", "statement", "verdict", "scope",
+         "clauses": [{"key", "text", "verdict", "cases"}]}
       ],
       "summary": {"checks", "hold", "refuted", "errors"},
       "environment": {"python", "sympy", "pin", "mujoco", "casadi", "torch", "mdgs"}
@@ -13,9 +17,13 @@ Schema (``mdgs validate --json PATH``)::
 
 ``counterexample`` is ``null`` or the object that :func:`kane.counterexamples.replay`
 (``mdgs validate --replay FILE``) accepts. ``corrected`` is ``null`` or
-``{"id", "statement", "verdict"}``: the corrected statement that ``kane`` offers for a
-refuted claim and the verdict of its own check on the same case (``null`` when that check
-was not run). The same dict feeds the docs' report page (``docs/hooks.py``).
+``{"id", "title", "statement", "verdict", "scope"}``: the corrected statement that ``kane``
+offers for a refuted claim, with the verdict of all its checks in the run (``null`` when none
+was run). ``clause`` is the key of the clause of the claim that the check tries; ``scope`` is
+the claim's one-line scope, "<verdict> for <clause>; ..." from the verdicts of every clause
+(:func:`scope_line`), the same line as in ``claims``. A claim's verdict is ``refuted`` when
+any of its checks is, ``error`` when any could not decide, ``not run`` when none ran. The
+same dict feeds the docs' pages (``docs/hooks.py``).
 """
 
 from __future__ import annotations
@@ -33,6 +41,10 @@ from typing import Any
 
 __all__ = [
     "ENVIRONMENT_PACKAGES",
+    "NOT_RUN",
+    "combine_verdicts",
+    "scope_line",
+    "claim_summaries",
     "build_report",
     "summarize",
     "summary_line",
@@ -79,6 +91,62 @@ def _jsonable(obj: Any) -> Any:
     return str(obj)
 
 
+NOT_RUN = "not run"
+
+
+def combine_verdicts(verdicts: Iterable[str]) -> str:
+    """One verdict of several checks: refuted > error > holds; ``not run`` when there are none."""
+    v = set(verdicts)
+    if not v:
+        return NOT_RUN
+    for w in ("refuted", "error"):
+        if w in v:
+            return w
+    return "holds"
+
+
+def _clauses(claim: Any) -> list[tuple[str, str]]:
+    fn = getattr(claim, "clause_list", None)
+    return list(fn()) if callable(fn) else [("", "every case tried")]
+
+
+def scope_line(clause_verdicts: Iterable[tuple[str, str]]) -> str:
+    """``"refuted for rotational speeds; holds for translational speeds"`` from (text, verdict)
+    per clause, in order; neighbouring clauses with the same verdict share it."""
+    parts: list[tuple[str, list[str]]] = []
+    for text, verdict in clause_verdicts:
+        if parts and parts[-1][0] == verdict:
+            parts[-1][1].append(text)
+        else:
+            parts.append((verdict, [text]))
+    return "; ".join(f"{v} for {', '.join(texts)}" for v, texts in parts)
+
+
+def claim_summaries(rows: Iterable[Mapping], claims: Mapping[str, Any]) -> list[dict]:
+    """The ``claims`` section: per claim id met in ``rows`` (in order), its verdict, the verdict
+    and cases of each clause, and the scope line."""
+    rows = list(rows)
+    out = []
+    for cid in dict.fromkeys(r["id"] for r in rows):
+        claim = claims.get(cid)
+        mine = [r for r in rows if r["id"] == cid]
+        clauses = []
+        for key, text in _clauses(claim):
+            hit = [r for r in mine if (r.get("clause") or "") == key]
+            clauses.append({"key": key, "text": text, "verdict": combine_verdicts(r["verdict"] for r in hit),
+                            "cases": [f"{r['case']} ({r['route']})" for r in hit]})
+        out.append({
+            "id": cid,
+            "title": getattr(claim, "title", None) or cid,
+            "equation": getattr(claim, "equation", None),
+            "statement": getattr(claim, "statement", None),
+            "verdict": combine_verdicts(r["verdict"] for r in mine),
+            "scope": scope_line((c["text"], c["verdict"]) for c in clauses),
+            "clauses": clauses,
+        })
+    return out
+
+
 def result_to_row(result: Any, claims: Mapping[str, Any] | None = None, verdicts: Mapping | None = None) -> dict:
     """One ``checks`` entry of the report from a :class:`kane.results.CheckResult` (or a dict).
 
@@ -88,8 +156,9 @@ def result_to_row(result: Any, claims: Mapping[str, Any] | None = None, verdicts
         One check outcome.
     claims : mapping of claim id -> Claim, optional
         ``kane.claims.CLAIMS``; gives the few-word ``claim`` title and the corrected statement.
-    verdicts : mapping of (claim id, case) -> verdict, optional
-        Verdicts of the whole run, to attach the corrected claim's own verdict.
+    verdicts : mapping of claim id -> verdict, optional
+        Combined verdicts of the whole run (:func:`combine_verdicts`), to attach the corrected
+        claim's own verdict.
     """
     claims = claims or {}
     verdicts = verdicts or {}
@@ -100,10 +169,13 @@ def result_to_row(result: Any, claims: Mapping[str, Any] | None = None, verdicts
     corrected = None
     if corrected_id:
         cclaim = claims.get(corrected_id)
+        v = verdicts.get(corrected_id)
         corrected = {
             "id": corrected_id,
+            "title": getattr(cclaim, "title", None),
             "statement": getattr(cclaim, "statement", None),
-            "verdict": verdicts.get((corrected_id, case)),
+            "verdict": None if v in (None, NOT_RUN) else v,
+            "scope": None,
         }
     cex = _field(result, "counterexample")
     return {
@@ -119,6 +191,8 @@ def result_to_row(result: Any, claims: Mapping[str, Any] | None = None, verdicts
         "corrected": corrected,
         "detail": str(_field(result, "detail", "") or ""),
         "seconds": _finite_or_none(_field(result, "seconds", 0.0)),
+        "clause": str(_field(result, "clause", "") or ""),
+        "scope": None,
     }
 
 
@@ -162,9 +236,19 @@ def environment() -> dict[str, str | None]:
 def build_report(results: Iterable[Any], claims: Mapping[str, Any] | None = None) -> dict:
     """The report dict (see the module docstring) from check results, in run order."""
     results = list(results)
-    verdicts = {(str(_field(r, "claim_id")), str(_field(r, "case"))): str(_field(r, "verdict")) for r in results}
+    claims = claims or {}
+    by_claim: dict[str, list[str]] = {}
+    for r in results:
+        by_claim.setdefault(str(_field(r, "claim_id")), []).append(str(_field(r, "verdict")))
+    verdicts = {cid: combine_verdicts(v) for cid, v in by_claim.items()}
     rows = [result_to_row(r, claims, verdicts) for r in results]
-    return {"checks": rows, "summary": summarize(rows), "environment": environment()}
+    summaries = claim_summaries(rows, claims)
+    scope = {c["id"]: c["scope"] for c in summaries}
+    for row in rows:
+        row["scope"] = scope.get(row["id"])
+        if row["corrected"]:
+            row["corrected"]["scope"] = scope.get(row["corrected"]["id"])
+    return {"checks": rows, "claims": summaries, "summary": summarize(rows), "environment": environment()}
 
 
 def write_json(report: Mapping, path: str | os.PathLike) -> None:

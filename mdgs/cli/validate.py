@@ -36,8 +36,8 @@ _VERDICT_STYLE = {"holds": "green", "refuted": "bold red", "error": "yellow"}
 
 
 def render_table(rows: list[dict], console: Console) -> None:
-    """The report table, then one line per refuted check (counterexample, corrected statement)
-    and one per error (why nothing was decided)."""
+    """The report table, one scope line per claim (its verdict per clause), then one line per
+    refuted check (counterexample, corrected statement) and one per error (why nothing was decided)."""
     table = Table(show_lines=False, header_style="bold")
     table.add_column("claim", no_wrap=True)
     table.add_column("in a few words", min_width=14, max_width=30)
@@ -57,6 +57,8 @@ def render_table(rows: list[dict], console: Console) -> None:
             Text(r["verdict"], style=_VERDICT_STYLE.get(r["verdict"], "")),
         )
     console.print(table)
+    for cid, (title, scope) in {r["id"]: (r["claim"], r.get("scope")) for r in rows if r.get("scope")}.items():
+        console.print(Text(f"{cid} ", style="bold") + Text(f"{title}: {scope}"), soft_wrap=True)
     for r in rows:
         where = f"{r['id']} on {r['case']} ({r['route']})"
         if r["verdict"] == "refuted":
