@@ -958,12 +958,12 @@ def _point_cell(h, points_per_axis: int = 2):
 
 def _inertia_ratio_engines(masses, offsets) -> list[tuple[str, float]]:
     """I_zz / (M tau^2) of a point-mass element from MuJoCo and Pinocchio (kane.counterexamples replay)."""
-    from kane.counterexamples import replay
+    from kane.engines import replay_element
 
     cex = {"claim_id": "eq36.corrected", "kind": "element",
            "sample": {"masses": list(map(float, masses)), "offsets": np.asarray(offsets).tolist(),
                       "forces": np.zeros((len(masses), 3)).tolist(), "omega": [0, 0, 0], "alpha": [0, 0, 0]}}
-    return [(eng, lhs / rhs) for eng, lhs, rhs in replay(cex).rows]  # rhs = M tau^2 for eq36.corrected
+    return [(eng, lhs / rhs) for eng, lhs, rhs in replay_element(cex).rows]  # rhs = M tau^2 for eq36.corrected
 
 
 _POINT_CASES = {  # case -> (half extents, points per axis, target ratio I_zz / (M tau^2), reason of the tolerance)

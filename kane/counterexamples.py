@@ -13,116 +13,9 @@ A counterexample is a JSON-ready dict with ``claim_id`` and ``kind``:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
-import numpy as np
+from kane.engines import ReplayReport, replay_element, replay_geom
 
 __all__ = ["ReplayReport", "replay"]
-
-_SPHERE = 1e-4  # radius of the point-mass spheres, m: adds (2/5) m r^2 ~ 4e-9 m to the inertia
-
-
-@dataclass(frozen=True)
-class ReplayReport:
-    """Both sides of a claim at a counterexample, per engine."""
-
-    claim_id: str
-    kind: str
-    rows: list = field(default_factory=list)  # (engine, lhs, rhs)
-    note: str = ""
-
-    @property
-    def refuted(self) -> bool:
-        return any(lhs > rhs for _, lhs, rhs in self.rows)
-
-    def __str__(self) -> str:
-        lines = [f"claim {self.claim_id} ({self.kind}): the claim says lhs <= rhs"]
-        for eng, lhs, rhs in self.rows:
-            lines.append(f"  {eng:10s} lhs = {lhs:.10g}   rhs = {rhs:.10g}   lhs - rhs = {lhs - rhs:.3g}")
-        lines.append(f"  => {'refuted' if self.refuted else 'holds'} at this point" + (f"; {self.note}" if self.note else ""))
-        return "\n".join(lines)
-
-
-def _element_sides(cid: str, M, I, R, Mc, tau, F_abs, w, a):
-    """Both sides of the Appendix A.2 inequalities from aggregate quantities (rotational speed e_z)."""
-    Ia = I @ a
-    Ls = Ia + np.cross(w, I @ w)
-    na, nw = np.linalg.norm(a), np.linalg.norm(w)
-    base = cid.replace(".corrected", "")
-    corr = cid.endswith(".corrected")
-    if base == "eq34":
-        return Mc[2], tau * (F_abs if corr else np.linalg.norm(R))
-    if base == "eq35":
-        return Ls[2], np.linalg.norm(Ia) + (M * tau**2 * nw**2 / 2 if corr else 0.0)
-    if base == "eq36":
-        return I[2, 2], (1.0 if corr else 0.4) * M * tau**2
-    if base == "eq37":
-        return Ls[2], M * tau**2 * (na + nw**2 / 2) if corr else 0.4 * M * tau**2 * na
-    if base == "eq12":
-        psi = Mc[2] - Ls[2]
-        return psi, (tau * F_abs + M * tau**2 * (na + nw**2 / 2)) if corr else tau * np.linalg.norm(R) + 0.4 * M * tau**2 * na
-    raise ValueError(f"no element replay for claim {cid!r}")
-
-
-def _element_mjcf(masses, offsets) -> str:
-    geoms = "\n".join(
-        f'<geom type="sphere" size="{_SPHERE}" mass="{m:.17g}" pos="{p[0]:.17g} {p[1]:.17g} {p[2]:.17g}" contype="0" conaffinity="0"/>'
-        for m, p in zip(masses, offsets, strict=True))
-    return (f'<mujoco model="element"><option gravity="0 0 0"/><worldbody><body name="element" pos="0 0 0">'
-            f'<freejoint name="root"/>{geoms}</body></worldbody></mujoco>')
-
-
-def _replay_element(cex: dict) -> ReplayReport:
-    import mujoco
-    import pinocchio as pin
-
-    s = cex["sample"]
-    masses = np.asarray(s["masses"], float)
-    offs = np.asarray(s["offsets"], float)
-    F = np.asarray(s["forces"], float)
-    w = np.asarray(s["omega"], float)
-    a = np.asarray(s["alpha"], float)
-    if masses.ndim != 1 or offs.shape != (len(masses), 3) or F.shape != offs.shape or w.shape != (3,) or a.shape != (3,):
-        raise ValueError("counterexample 'sample' needs masses [L], offsets [L,3], forces [L,3], omega [3], alpha [3]")
-    xml = _element_mjcf(masses, offs)
-    m = mujoco.MjModel.from_xml_string(xml)
-    d = mujoco.MjData(m)
-    mujoco.mj_forward(m, d)
-    com = d.xipos[1].copy()
-    Rq = np.zeros(9)
-    mujoco.mju_quat2Mat(Rq, m.body_iquat[1])
-    Rq = Rq.reshape(3, 3)
-    I_mj = Rq @ np.diag(m.body_inertia[1]) @ Rq.T
-    qfrc = np.zeros(m.nv)
-    for p, f in zip(offs, F, strict=True):
-        mujoco.mj_applyFT(m, d, f, np.zeros(3), p, 1, qfrc)
-    R_mj = qfrc[:3]
-    Mc_mj = qfrc[3:6] - np.cross(com, R_mj)  # free joint torque is about the body origin; move to the centroid
-    tau = float(np.linalg.norm(offs - com, axis=1).max())
-    F_abs = float(np.linalg.norm(F, axis=1).sum())
-    rows = [("mujoco", *_element_sides(cex["claim_id"], float(m.body_mass[1]), I_mj, R_mj, Mc_mj, tau, F_abs, w, a))]
-    # Pinocchio composes the point masses with its own spatial-inertia algebra (parallel axis theorem)
-    inert = pin.Inertia.Zero()
-    for mm, p in zip(masses, offs, strict=True):
-        inert = inert + pin.Inertia(float(mm), np.asarray(p, float), np.zeros((3, 3)))
-    I_pin = np.asarray(inert.inertia)
-    rows.append(("pinocchio", *_element_sides(cex["claim_id"], float(inert.mass), I_pin, F.sum(0),
-                                              np.cross(offs - np.asarray(inert.lever), F).sum(0), tau, F_abs, w, a)))
-    return ReplayReport(cex["claim_id"], "element", rows,
-                        f"MuJoCo: body of spheres; Pinocchio: sum of pin.Inertia point masses; spheres of radius {_SPHERE} m add <= {0.4 * _SPHERE**2:.0e} m to inertia")
-
-
-def _replay_geom(cex: dict) -> ReplayReport:
-    import mujoco
-
-    Rr, hh = cex["size"]
-    m = mujoco.MjModel.from_xml_string(
-        f'<mujoco><worldbody><body><freejoint/><geom type="{cex["geom"]}" size="{Rr} {hh}" density="{cex["density"]}"/></body></worldbody></mujoco>')
-    mass, I = float(m.body_mass[1]), m.body_inertia[1]
-    tau = float(np.hypot(Rr, hh))
-    k = 1.0 if cex["claim_id"].endswith(".corrected") else 0.4
-    return ReplayReport(cex["claim_id"], "mujoco_geom", [("mujoco", float(I.max()), k * mass * tau**2)],
-                        f"{cex['geom']} element: MuJoCo inertia {np.round(I, 8).tolist()} kg m^2, tau = {tau:.5g} m")
 
 
 def _replay_check(cex: dict) -> ReplayReport:
@@ -146,9 +39,9 @@ def replay(cex: dict) -> ReplayReport:
     if kind == "element":
         if "sample" not in cex:
             raise ValueError("an 'element' counterexample needs a 'sample' object")
-        return _replay_element(cex)
+        return replay_element(cex)
     if kind == "mujoco_geom":
-        return _replay_geom(cex)
+        return replay_geom(cex)
     if kind in ("trajectory", "jacobian", "scaling"):
         return _replay_check(cex)
     raise ValueError(f"unknown counterexample kind {kind!r}; expected element, mujoco_geom, trajectory, jacobian or scaling")
