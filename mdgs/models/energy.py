@@ -31,7 +31,13 @@ import torch
 from mdgs.data.split import SplitData
 from mdgs.graphs import SceneGraph, contact_edges
 from mdgs.models.base import Batch, ModelError, Simulator
-from mdgs.models.mechanics import EdgePotential, ExternalForces, NodeMass, NodePotential, build_constraints
+from mdgs.models.mechanics import (
+    EdgePotential,
+    ExternalForces,
+    NodeMass,
+    NodePotential,
+    build_constraints,
+)
 from mdgs.structure import align_to_reference
 
 __all__ = ["EnergyConfig", "EnergyPeer", "N_PROPERTIES"]
@@ -242,15 +248,15 @@ class EnergyPeer(Simulator):
         v = torch.zeros_like(x).index_copy_(1, b["mov"], qd)
         return self.external_forces(b, x, v, ctrl)[:, b["mov"]]
 
-    def finish(self, b: dict, q: torch.Tensor) -> torch.Tensor:
-        """Full positions of the new frame, with the structural constraint module if configured."""
+    def finish(self, b: dict, q: torch.Tensor, x_in: torch.Tensor) -> torch.Tensor:
+        """Full positions of the new frame (static nodes stay where ``x_in`` has them), with the
+        structural constraint module if configured."""
         x = self.full_positions(b, q)
         if self.config.structure:
             scene = b["scene"]
             moving = ~b["static"]
             x = align_to_reference(x, scene.ref_shape.to(x.device), scene.obj, scene.n_obj, mask=moving)
-            x = torch.where(moving.view(1, -1, 1), x, b["xref"].expand_as(x))
-        return x
+        return torch.where((~b["static"]).view(1, -1, 1), x, x_in.to(x.dtype))
 
     # --- training ----------------------------------------------------------------------------------
     def acceleration(self, b: dict, q: torch.Tensor, qd: torch.Tensor, ctrl: torch.Tensor) -> torch.Tensor:

@@ -88,7 +88,7 @@ class HGNS(EnergyPeer):
             return qd.detach(), pd.detach()
         for _ in range(self.config.substeps):
             q, p = rk4(f, q, p, h)
-        x = self.finish(b, q)
+        x = self.finish(b, q, state.x)
         with torch.no_grad():
             qd = p / self.masses(b)[:, None]
         v = torch.zeros_like(x).index_copy_(1, mov, qd)

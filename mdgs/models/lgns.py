@@ -80,6 +80,6 @@ class LGNS(EnergyPeer):
         h = self.config.dt / self.config.substeps
         for _ in range(self.config.substeps):
             q, qd = velocity_verlet(lambda q_, v_: self.acceleration(b, q_, v_, ctrl).detach(), q, qd, h)
-        x = self.finish(b, q.detach())
+        x = self.finish(b, q.detach(), state.x)
         v = torch.zeros_like(x).index_copy_(1, mov, qd.detach())
         return State(x, v)

@@ -449,7 +449,7 @@ def build_constraints(split, xref: np.ndarray | None = None) -> tuple[Constraint
         elif len(nodes):
             bodies[b] = _frames(nodes, xref)
     # rigidity: anchor distances + affine combinations of the anchors (linear)
-    for b, body in bodies.items():
+    for body in bodies.values():
         if body.world or len(body.nodes) < 2:
             continue
         a = body.anchors[: body.rank + 1]
