@@ -6,6 +6,7 @@ Helpers and the 8-frame cubli-triple data come from tests/test_model_lgns.py.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 from test_model_lgns import (
     STEPS,
@@ -59,6 +60,7 @@ def test_hgns_shapes_and_constraints(micro_data):
     check_shapes_and_constraints(HGNS, micro_data)
 
 
+@pytest.mark.slow
 def test_hgns_overfits_two_batches(micro_data):
     from mdgs.models.hgns import HGNS
 
