@@ -7,6 +7,8 @@ carries its ``Config`` dataclass (every default documented) and a one-line ``sum
 from __future__ import annotations
 
 from mdgs.models.base import Batch, ModelError, Simulator, State, batch_of, one_step_error
+from mdgs.models.hgns import HGNS
+from mdgs.models.lgns import LGNS
 from mdgs.models.mdgs import MDGS, MDGSNoConstraint, MDGSSingleSpeed
 from mdgs.models.references import ConstantTwist, MuJoCoReference
 
@@ -16,6 +18,7 @@ __all__ = ["MODELS", "LEARNED", "REFERENCES", "Simulator", "State", "Batch", "Mo
 MODELS: dict[str, type[Simulator]] = {
     cls.name: cls for cls in (MDGS, MDGSNoConstraint, MDGSSingleSpeed, ConstantTwist, MuJoCoReference)
 }
+MODELS |= {cls.name: cls for cls in (LGNS, HGNS)}  # issue 12 peers: energy-based (mdgs/models/lgns.py, hgns.py)
 #: Names of the models that are trained.
 LEARNED = tuple(n for n, c in MODELS.items() if c.learned)
 #: Names of the non-learned references.
