@@ -73,7 +73,7 @@ def resolve_device(name: str) -> torch.device:
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name == "cuda" and not torch.cuda.is_available():
         raise RunError("--device cuda was asked for but no CUDA device is present; use --device auto or cpu")
-    if name not in ("cpu", "cuda"):
+    if name not in ("cpu", "cuda") and not (name.startswith("cuda:") and name[5:].isdigit()):
         raise RunError(f"--device {name!r} is not known; use auto, cpu or cuda")
     return torch.device(name)
 

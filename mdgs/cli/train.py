@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import typer
@@ -66,6 +67,8 @@ def train_cmd(
     except KeyboardInterrupt:
         typer.echo(f"interrupted; rerun the same command to resume {out} from its last finished epoch", err=True)
         raise typer.Exit(130) from None
+    if os.environ.get("RANK", "0") != "0":  # under torchrun: rank 0 speaks for the job
+        return
     if last:
         losses = ", ".join(f"L_{k[6:]} {v:.4g}" for k, v in last.items() if k.startswith("train_") and k != "train_seconds")
         typer.echo(f"{out}: epoch {last['epoch'] + 1}/{epochs}, train {losses}, valid one-step MSE {last['valid_mse']:.4g}")

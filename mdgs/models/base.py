@@ -74,6 +74,11 @@ class Batch:
     def __len__(self) -> int:
         return self.x.shape[0]
 
+    def rows(self, sel: slice) -> Batch:
+        """The pairs ``sel`` of this batch (every tensor sliced along its first axis)."""
+        return Batch(*(None if a is None else a[sel] for a in (self.x, self.v, self.ctrl, self.x_next,
+                                                               self.v_next, self.x_past, self.v_past)))
+
 
 def batch_of(d: SplitData, idx: np.ndarray, dev, history: int = 0) -> Batch:
     """The :class:`Batch` of pairs ``idx`` [B, 2] (trajectory, frame t) of a split, on ``dev``."""

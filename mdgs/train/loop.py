@@ -28,8 +28,20 @@ from mdgs.data.schema import DatasetError
 from mdgs.data.split import SplitData, load_splits
 from mdgs.models import ModelError, batch_of, get_model, one_step_error
 from mdgs.runs import RunError, atomic_json, read_checkpoint, resolve_device, write_checkpoint
+from mdgs.train.distributed import setup, teardown
 
 __all__ = ["TrainConfig", "TrainingError", "train"]
+
+
+class _Losses(torch.nn.Module):
+    """``forward(batch) = model.losses(batch)``: what DistributedDataParallel wraps (it hooks forward)."""
+
+    def __init__(self, model):
+        super().__init__()
+        self.model = model
+
+    def forward(self, batch):
+        return self.model.losses(batch)
 
 
 class TrainingError(RunError):
@@ -107,13 +119,25 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, spli
     :class:`~mdgs.data.schema.DatasetError` for user errors, before anything is written.
     """
     progress = progress or (lambda e: None)
-    out = Path(cfg.out)
     cls = get_model(cfg.model_name)
     if not cls.learned:
         raise ModelError(f"model {cfg.model_name!r} is a non-learned reference with nothing to train; "
                          f"evaluate it directly with `mdgs evaluate --model {cfg.model_name} --data DIR`")
     tr, va = _load_splits(cfg, splits)
-    dev = resolve_device(cfg.device)
+    dist_, device = setup(cfg.device)
+    try:
+        return _train(cfg, progress, tr, va, cls, dist_, resolve_device(device))
+    finally:
+        teardown(dist_)
+
+
+def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_, dev) -> dict:
+    out = Path(cfg.out)
+    if not dist_.is_main:  # one progress report per job
+        progress = lambda e: None  # noqa: E731
+    if cfg.batch_size % dist_.world:
+        raise RunError(f"--batch-size {cfg.batch_size} is not divisible by the {dist_.world} processes; "
+                       "choose a multiple of the process count")
     mcfg = cls.resolve_config(cfg.model if cfg.model is not None else cls.Config(), tr)
     model_dict = dict(asdict(mcfg))
     resolved = {**asdict(cfg), "model": model_dict, "device": str(dev), "data_identity": tr.identity(),
@@ -143,6 +167,7 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, spli
     model.bind(tr)
     model.fit(tr)
     model = model.to(dev)
+    step_model = dist_.wrap(_Losses(model), dev)
     opt, sched, when = model.optimizer(cfg.lr)
     history, steps_log, start = [], [], 0
     if state is not None:
@@ -150,8 +175,10 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, spli
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
         history, steps_log, start = state["history"], state["steps"], state["epoch"] + 1
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_json(resolved, out / "config.json")
+    resolved["processes"] = dist_.world
+    if dist_.is_main:
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_json(resolved, out / "config.json")
     weights = model.loss_weights()
     pairs_all = tr.pairs(model.history)
     n_steps = max(1, len(pairs_all) // cfg.batch_size)
@@ -168,7 +195,10 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, spli
         tot: dict[str, float] = {}
         for s in range(n_steps):
             batch = batch_of(tr, pairs[s * cfg.batch_size:(s + 1) * cfg.batch_size], dev, model.history)
-            losses = model.losses(model.perturb(batch, gen))
+            batch = model.perturb(batch, gen)  # noise of the global batch: the same for any process count
+            if dist_.enabled:
+                batch = batch.rows(dist_.rows(len(batch)))
+            losses = step_model(batch)
             loss = None
             for k, w in weights.items():
                 term = losses[k] if w == 1.0 else w * losses[k]
@@ -181,13 +211,15 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, spli
             opt.step()
             if when == "step":
                 sched.step()
-            vals = {k: v.item() for k, v in losses.items()}
+            vals = dist_.mean({k: v.item() for k, v in losses.items()})
+            loss_val = dist_.mean({"loss": loss.item()})["loss"]
             for k, v in vals.items():
                 tot[k] = tot.get(k, 0.0) + v
             if s % cfg.log_every == 0 or s == n_steps - 1:
-                steps_log.append({"epoch": epoch, "step": s, "loss": loss.item(), **{f"l_{k}": v for k, v in vals.items()}})
-            progress({"kind": "step", "epoch": epoch, "step": s + 1, "steps": n_steps, "loss": loss.item(),
-                      "losses": vals})
+                steps_log.append({"epoch": epoch, "step": s, "loss": loss_val, **{f"l_{k}": v for k, v in vals.items()}})
+            if dist_.is_main:
+                progress({"kind": "step", "epoch": epoch, "step": s + 1, "steps": n_steps, "loss": loss_val,
+                          "losses": vals})
         train_s = time.perf_counter() - t0
         val = one_step_error(model, va, dev, max(cfg.batch_size, 64), cfg.valid_max_pairs)
         if when == "epoch":
@@ -196,11 +228,14 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, spli
                "valid_mse": val, "lr": opt.param_groups[0]["lr"], "steps": n_steps,
                "train_seconds": train_s, "seconds": time.perf_counter() - t0}
         history.append(rec)
-        write_checkpoint(ckpt_path, {
-            "model_name": cls.name, "model": model.state_dict(), "opt": opt.state_dict(),
-            "sched": sched.state_dict(), "epoch": epoch, "config": resolved, "train_fingerprint": fp,
-            "data_identity": tr.identity(), "has_contact": tr.has_contact, "history": history, "steps": steps_log})
-        atomic_json(history, out / "metrics.json")
-        atomic_json(steps_log, out / "steps.json")
-        progress({"kind": "epoch", **rec})
+        if dist_.is_main:  # only rank 0 writes; the others wait so a resume sees a finished epoch
+            write_checkpoint(ckpt_path, {
+                "model_name": cls.name, "model": model.state_dict(), "opt": opt.state_dict(),
+                "sched": sched.state_dict(), "epoch": epoch, "config": resolved, "train_fingerprint": fp,
+                "data_identity": tr.identity(), "has_contact": tr.has_contact, "history": history,
+                "steps": steps_log})
+            atomic_json(history, out / "metrics.json")
+            atomic_json(steps_log, out / "steps.json")
+            progress({"kind": "epoch", **rec})
+        dist_.barrier()
     return history[-1] if history else {}
