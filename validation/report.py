@@ -141,7 +141,9 @@ def claim_summaries(rows: Iterable[Mapping], claims: Mapping[str, Any]) -> list[
             "equation": getattr(claim, "equation", None),
             "statement": getattr(claim, "statement", None),
             "verdict": combine_verdicts(r["verdict"] for r in mine),
-            "scope": scope_line((c["text"], c["verdict"]) for c in clauses),
+            # rows of checks that name no clause (dataset checks) say nothing of the claim's scope
+            "scope": (scope_line((c["text"], c["verdict"]) for c in clauses)
+                      if any(c["verdict"] != NOT_RUN for c in clauses) else None),
             "clauses": clauses,
         })
     return out
