@@ -312,18 +312,21 @@ def _round_counts(r: float, h: float) -> tuple[int, int]:
     return max(1, int(round(r / h))), max(3, int(round(2 * np.pi * r / h)))
 
 
+def _block_cells(kind: str, edges, periodic: tuple[bool, bool, bool], **kw) -> _Cells:
+    """Cells of one parameter block (:func:`_curvilinear`) and their face neighbours.
+
+    ``periodic`` marks the parameters that wrap around (an angle over a full turn).
+    """
+    vol, first, second, samples, shape = _curvilinear(kind, edges, **kw)
+    edge_pairs = np.array(_grid_edges(shape, periodic), int).reshape(-1, 2)
+    return _Cells(vol, first, second, list(samples), edge_pairs)
+
+
 def _box_cells(size, h) -> _Cells:
     a, b, c = size
     n = [_divisions(2 * s, h) for s in (a, b, c)]
     edges = [np.linspace(-s, s, k + 1) for s, k in zip((a, b, c), n, strict=True)]
-    vol, first, second, samples, shape = _curvilinear("box", edges)
-    return _Cells(
-        vol,
-        first,
-        second,
-        list(samples),
-        np.array(_grid_edges(shape, (False,) * 3), int).reshape(-1, 2),
-    )
+    return _block_cells("box", edges, (False,) * 3)
 
 
 def _cylinder_cells(r, hh, h) -> _Cells:
@@ -334,14 +337,7 @@ def _cylinder_cells(r, hh, h) -> _Cells:
         np.linspace(0, 2 * np.pi, ns + 1),
         np.linspace(-hh, hh, nz + 1),
     ]
-    vol, first, second, samples, shape = _curvilinear("cyl", edges)
-    return _Cells(
-        vol,
-        first,
-        second,
-        list(samples),
-        np.array(_grid_edges(shape, (False, True, False)), int).reshape(-1, 2),
-    )
+    return _block_cells("cyl", edges, (False, True, False))
 
 
 def _sphere_cells(r, h, scale=(1.0, 1.0, 1.0)) -> _Cells:
@@ -352,14 +348,7 @@ def _sphere_cells(r, h, scale=(1.0, 1.0, 1.0)) -> _Cells:
         np.linspace(0, np.pi, nth + 1),
         np.linspace(0, 2 * np.pi, nphi + 1),
     ]
-    vol, first, second, samples, shape = _curvilinear("sph", edges, scale=scale)
-    return _Cells(
-        vol,
-        first,
-        second,
-        list(samples),
-        np.array(_grid_edges(shape, (False, False, True)), int).reshape(-1, 2),
-    )
+    return _block_cells("sph", edges, (False, False, True), scale=scale)
 
 
 def _capsule_cells(r, hh, h) -> _Cells:

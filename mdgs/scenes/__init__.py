@@ -27,50 +27,35 @@ __all__ = [
 ]
 
 
-def _cubli(name, summary, variant_of=None, **kw) -> SceneSpec:
+def _scene(
+    family: str, builder: SceneBuilder, name: str, summary: str, variant_of: str | None = None
+) -> SceneSpec:
+    """A built-in scene: each has contacts and a free-floating system; a variant is a test set."""
     splits = ("test",) if variant_of else SPLITS
     return SceneSpec(
-        name,
-        "cubli",
-        summary,
-        Cubli(**kw),
-        has_contact=True,
-        free_floating=True,
-        splits=splits,
+        name, family, summary, builder, has_contact=True, free_floating=True, splits=splits,
         variant_of=variant_of,
-    )
+    )  # fmt: skip
+
+
+def _cubli(name, summary, variant_of=None, **kw) -> SceneSpec:
+    return _scene("cubli", Cubli(**kw), name, summary, variant_of)
 
 
 def _rot(name, summary, hinges) -> SceneSpec:
-    return SceneSpec(
-        name,
-        "rotational",
-        summary,
-        RotationalBody(hinges=hinges),
-        has_contact=True,
-        free_floating=True,
-    )
+    return _scene("rotational", RotationalBody(hinges=hinges), name, summary)
 
 
 def _space(name, summary, **kw) -> SceneSpec:
-    return SceneSpec(name, "space", summary, SpaceRobot(**kw), has_contact=True, free_floating=True)
+    return _scene("space", SpaceRobot(**kw), name, summary)
 
 
 def _car(name, summary, variant) -> SceneSpec:
-    return SceneSpec(
-        name, "vehicle", summary, Vehicle(variant=variant), has_contact=True, free_floating=True
-    )
+    return _scene("vehicle", Vehicle(variant=variant), name, summary)
 
 
 def _ur5(name, summary, interaction) -> SceneSpec:
-    return SceneSpec(
-        name,
-        "ur5husky",
-        summary,
-        UR5Husky(interaction=interaction),
-        has_contact=True,
-        free_floating=True,
-    )
+    return _scene("ur5husky", UR5Husky(interaction=interaction), name, summary)
 
 
 _ALL: list[SceneSpec] = [

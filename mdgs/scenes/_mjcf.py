@@ -1,8 +1,10 @@
-"""Small MJCF writer shared by the scene builders (one place for the common options).
+"""The MJCF writer shared by the scene builders: the common options and the recurring elements.
 
 Every scene uses the Euler integrator (finite-difference accelerations then match the
 recorded loads, see :mod:`mdgs.data.record`) and no joint damping. Numbers are written
-with ``repr`` precision so the MJCF text, and its hash, are reproducible.
+with ``repr`` precision so the MJCF text, and its hash, are reproducible. Attributes
+are written in the order they are given (``name`` and ``type`` first), so a builder's
+text does not depend on which helper wrote an element.
 """
 
 from __future__ import annotations
@@ -10,12 +12,18 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from collections.abc import Iterable
 
+import mujoco
 import numpy as np
 
 __all__ = [
     "Mjcf",
+    "STATIC_RGBA",
+    "WHEELS",
     "fmt",
-    "quat_to_mat",
+    "actuator_names",
+    "yaw_quat",
+    "at_rest",
+    "place_free",
     "box_volume",
     "capsule_volume",
     "cylinder_volume",
@@ -120,6 +128,59 @@ class Mjcf:
     def body(self, parent: ET.Element, name: str, pos=(0, 0, 0), **attrs) -> ET.Element:
         return self.el(parent, "body", name=name, pos=pos, **attrs)
 
+    def geom(self, parent: ET.Element, name: str, type: str, **attrs) -> ET.Element:
+        """A named geom of shape ``type`` (box, cylinder, capsule, ...) on ``parent``."""
+        return self.el(parent, "geom", name=name, type=type, **attrs)
+
+    def hinge(self, body: ET.Element, name: str, axis, **attrs) -> ET.Element:
+        """A hinge joint of ``body`` about ``axis`` (body frame)."""
+        return self.el(body, "joint", name=name, type="hinge", axis=axis, **attrs)
+
+    def actuate(self, kind: str, name: str, joint: str, **attrs) -> ET.Element:
+        """An actuator (``kind``: motor, position, velocity) on ``joint``."""
+        return self.el(self.actuator, kind, name=name, joint=joint, **attrs)
+
+    def free_body(self, name: str, pos, joint: str | None = None) -> ET.Element:
+        """A body of the world on a free joint (named ``joint``, by default ``name``)."""
+        body = self.body(self.world, name, pos=pos)
+        self.el(body, "freejoint", name=joint or name)
+        return body
+
+    def free_object(self, name: str, type: str, pos, joint: str | None = None, **geom):
+        """A free body with one geom, both named ``name``: a thrown box, a crate, a can."""
+        body = self.free_body(name, pos, joint)
+        self.geom(body, name, type, **geom)
+        return body
+
+    def wheel(
+        self,
+        parent: ET.Element,
+        tag: str,
+        pos,
+        radius: float,
+        half_width: float,
+        *,
+        euler=None,
+        drive: tuple[float, float, float] | None = None,
+        **geom,
+    ) -> ET.Element:
+        """Body ``wheel_{tag}`` spinning about its y axis on hinge ``spin_{tag}``.
+
+        The geom is a cylinder of ``radius`` turned onto the y axis, with the attributes
+        ``geom`` (mass, friction, rgba); ``drive = (kv, speed, torque)`` adds the velocity
+        servo ``drive_{tag}``: gain kv (N m s/rad), targets within +-speed (rad/s), torque
+        within +-torque (N m).
+        """
+        body = self.body(parent, f"wheel_{tag}", pos=pos, euler=euler)
+        self.hinge(body, f"spin_{tag}", (0, 1, 0))
+        size = (radius, half_width)
+        self.geom(body, f"wheel_{tag}", "cylinder", size=size, euler=(np.pi / 2, 0, 0), **geom)
+        if drive is not None:
+            kv, speed, torque = drive
+            ranges = {"ctrlrange": (-speed, speed), "forcerange": (-torque, torque)}
+            self.actuate("velocity", f"drive_{tag}", f"spin_{tag}", kv=kv, **ranges)
+        return body
+
     def xml(self) -> str:
         if len(self.actuator) == 0:
             self.root.remove(self.actuator)
@@ -127,22 +188,11 @@ class Mjcf:
         return ET.tostring(self.root, encoding="unicode") + "\n"
 
 
-def unit(v) -> np.ndarray:
-    v = np.asarray(v, float)
-    return v / np.linalg.norm(v)
+STATIC_RGBA = (0.55, 0.5, 0.45, 1)
+"""Colour of the static obstacles (walls, blocks, posts)."""
 
-
-def quat_to_mat(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices of unit quaternions (w, x, y, z): [..., 4] -> [..., 3, 3]."""
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
+WHEELS = (("fl", 1, 1), ("fr", 1, -1), ("rl", -1, 1), ("rr", -1, -1))
+"""The four wheels of a car: tag, side along x (+1 front), side along y (+1 left)."""
 
 
 def box_volume(half) -> float:
@@ -157,10 +207,34 @@ def cylinder_volume(r: float, half_length: float) -> float:
     return float(np.pi * r * r * 2 * half_length)
 
 
+def actuator_names(model) -> list[str]:
+    """Names of the actuators of a compiled ``mujoco.MjModel``, in actuator order."""
+    return [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in range(model.nu)]
+
+
+def yaw_quat(yaw: float) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of a rotation by ``yaw`` (rad) about the z axis."""
+    q = np.zeros(4)
+    mujoco.mju_axisAngle2Quat(q, np.array([0, 0, 1.0]), yaw)
+    return q
+
+
+def at_rest(model, data) -> None:
+    """Put every joint at its reference position ``qpos0``, at rest."""
+    data.qpos[:] = model.qpos0
+    data.qvel[:] = 0
+
+
+def place_free(model, data, joint: str, pos, quat) -> int:
+    """Set position and orientation of the free joint ``joint``; returns its qpos address."""
+    adr = model.jnt_qposadr[model.joint(joint).id]
+    data.qpos[adr : adr + 3] = pos
+    data.qpos[adr + 3 : adr + 7] = quat
+    return adr
+
+
 def lift_out_of_contact(model, data, z_adr: int, clearance: float = 1e-4) -> None:
     """Raise a free body (qpos[z_adr] is its height) until no contact penetrates more than 0."""
-    import mujoco
-
     for _ in range(4):
         mujoco.mj_forward(model, data)
         depth = min((data.contact[i].dist for i in range(data.ncon)), default=0.0)

@@ -11,12 +11,11 @@ shard computes it.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
 
-__all__ = ["Controller", "OpenLoop", "smooth_signal", "smooth_targets", "ctrl_table"]
+__all__ = ["Controller", "OpenLoop", "smooth_signal", "smooth_targets"]
 
 
 class Controller(Protocol):
@@ -89,8 +88,3 @@ def smooth_targets(
         w = 0.5 - 0.5 * np.cos(np.pi * w)
         out = (1 - w) * np.asarray(start, float) + w * out
     return np.clip(out, low, high)
-
-
-def ctrl_table(rngs: Sequence[np.random.Generator], make) -> np.ndarray:
-    """Stack ``make(rng) -> [F, nu]`` over the batch: ``[R, F, nu]``."""
-    return np.stack([make(r) for r in rngs])

@@ -36,7 +36,8 @@ import numpy as np
 import scipy.linalg
 from numba import njit
 
-from mdgs.scenes._mjcf import Mjcf
+from mdgs.scenes._mjcf import STATIC_RGBA, Mjcf, place_free, yaw_quat
+from mdgs.scenes._spec import SceneBuilder
 from mdgs.scenes.controls import smooth_signal
 
 __all__ = ["Cubli"]
@@ -46,7 +47,7 @@ _WHEEL_EULER = {"x": (0, np.pi / 2, 0), "y": (np.pi / 2, 0, 0), "z": (0, 0, 0)}
 
 
 @dataclass(frozen=True)
-class Cubli:
+class Cubli(SceneBuilder):
     """Parameters of a Cubli scene (SI units)."""
 
     wheels: str = "xyz"
@@ -71,64 +72,29 @@ class Cubli:
     def mjcf(self) -> str:
         doc = Mjcf(f"cubli-{self.wheels}", timestep=self.timestep)
         w = doc.world
-        doc.el(
-            w,
-            "geom",
-            name="wall",
-            type="box",
-            size=(0.02, 0.4, 0.06),
-            pos=(0.42, 0, 0.06),
-            rgba=(0.55, 0.5, 0.45, 1),
-        )
-        doc.el(
-            w,
-            "geom",
-            name="block",
-            type="box",
-            size=(0.05, 0.05, 0.04),
-            pos=(-0.3, 0.28, 0.04),
-            euler=(0, 0, 0.4),
-            rgba=(0.55, 0.5, 0.45, 1),
-        )
+        doc.geom(w, "wall", "box", size=(0.02, 0.4, 0.06), pos=(0.42, 0, 0.06), rgba=STATIC_RGBA)
+        doc.geom(
+            w, "block", "box", size=(0.05, 0.05, 0.04), pos=(-0.3, 0.28, 0.04), euler=(0, 0, 0.4),
+            rgba=STATIC_RGBA,
+        )  # fmt: skip
         half = np.asarray(self.size) / 2
-        cube = doc.body(w, "cube", pos=(0, 0, half[2]))
-        doc.el(cube, "freejoint", name="root")
-        doc.el(
-            cube,
-            "geom",
-            name="cube",
-            type="box",
-            size=half,
-            mass=self.frame_mass,
+        cube = doc.free_object(
+            "cube", "box", pos=(0, 0, half[2]), joint="root", size=half, mass=self.frame_mass,
             rgba=(0.75, 0.78, 0.82, 1),
-        )
+        )  # fmt: skip
         for a in self.wheels:
             k = _AXES[a]
             off = np.zeros(3)
             off[k] = half[k] - self.wheel_inset
             wb = doc.body(cube, f"wheel_{a}", pos=off)
-            axis = np.zeros(3)
-            axis[k] = 1
-            doc.el(wb, "joint", name=f"spin_{a}", type="hinge", axis=axis)
-            doc.el(
-                wb,
-                "geom",
-                name=f"wheel_{a}",
-                type="cylinder",
-                size=(self.wheel_radius, self.wheel_half_thickness),
-                euler=_WHEEL_EULER[a],
-                mass=self.wheel_mass,
-                contype=0,
-                conaffinity=0,
+            doc.hinge(wb, f"spin_{a}", np.eye(3)[k])
+            doc.geom(
+                wb, f"wheel_{a}", "cylinder", size=(self.wheel_radius, self.wheel_half_thickness),
+                euler=_WHEEL_EULER[a], mass=self.wheel_mass, contype=0, conaffinity=0,
                 rgba=(0.85, 0.45, 0.2, 1),
-            )
-            doc.el(
-                doc.actuator,
-                "motor",
-                name=f"motor_{a}",
-                joint=f"spin_{a}",
-                ctrlrange=(-self.torque_limit, self.torque_limit),
-            )
+            )  # fmt: skip
+            limit = (-self.torque_limit, self.torque_limit)
+            doc.actuate("motor", f"motor_{a}", f"spin_{a}", ctrlrange=limit)
         return doc.xml()
 
     # ---- geometry helpers ----------------------------------------------------------
@@ -168,9 +134,7 @@ class Cubli:
         p = self._params(model)
         jump = rng.uniform() < self.p_jump
         s = self.intensity
-        yaw = rng.uniform(-np.pi, np.pi)
-        q = np.zeros(4)
-        mujoco.mju_axisAngle2Quat(q, np.array([0, 0, 1.0]), yaw)
+        q = yaw_quat(rng.uniform(-np.pi, np.pi))
         qvel = np.zeros(model.nv)
         wheel_dofs = {a: model.jnt_dofadr[model.joint(f"spin_{a}").id] for a in self.wheels}
         if jump:
@@ -204,8 +168,8 @@ class Cubli:
         mujoco.mju_quat2Mat(R, q)
         zmin = (self._corners() @ R.reshape(3, 3).T)[:, 2].min()
         data.qpos[:] = model.qpos0
-        data.qpos[0:3] = [rng.uniform(-0.08, 0.08), rng.uniform(-0.08, 0.08), -zmin]
-        data.qpos[3:7] = q
+        x, y = rng.uniform(-0.08, 0.08), rng.uniform(-0.08, 0.08)
+        place_free(model, data, "root", [x, y, -zmin], q)
         data.qvel[:] = qvel
 
     def _corner_to_com(self, p: dict, signs: np.ndarray) -> np.ndarray:
@@ -227,13 +191,8 @@ class Cubli:
         return float(np.sqrt(2 * Ia * dE) / p["Iw"][a])
 
     # ---- controls ------------------------------------------------------------------
-    def controller(
-        self,
-        model: mujoco.MjModel,
-        rngs: Sequence[np.random.Generator],
-        n_frames: int,
-        qpos0: np.ndarray,
-    ):
+    def controller(self, model, rngs, n_frames, qpos0) -> _CubliController:
+        """Closed loop: the balance controller (overrides :meth:`SceneBuilder.controller`)."""
         return _CubliController(self, model, rngs, n_frames)
 
 
@@ -281,7 +240,7 @@ def _lqr_gain(M: float, l: float, Ia: float, Iw: float, dt: float) -> np.ndarray
 def _gains(cubli: Cubli) -> tuple[np.ndarray, np.ndarray]:
     """LQR gains: edge balance per wheel axis [nw, 3], corner balance (both horizontal axes) [3]."""
     p = _system_params(cubli)
-    dt = cubli.timestep * cubli.substeps
+    dt = cubli.frame_dt
     half = np.asarray(cubli.size) / 2
     K_edge = []
     for a in cubli.wheels:
@@ -316,7 +275,7 @@ class _CubliController:
         self.c = cubli
         p = cubli._params(model)
         self.p = p
-        self.dt = cubli.timestep * cubli.substeps
+        self.dt = cubli.frame_dt
         self.nw = len(cubli.wheels)
         self.k_axis = np.array([_AXES[a] for a in cubli.wheels])
         self.dofs = np.array([model.jnt_dofadr[model.joint(f"spin_{a}").id] for a in cubli.wheels])

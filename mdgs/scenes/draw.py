@@ -1,25 +1,24 @@
-"""Pictures of the scenes for the docs: a MuJoCo render next to the element graph.
+"""Pictures of a scene at one state, for the docs: a MuJoCo render next to the element graph.
 
-    python -m mdgs.scenes.draw --out docs/img/scenes [SCENE ...]
-
-For each scene, trajectory 0 of the training split (seed 0) is simulated to a frame
-where things move, and two panels are drawn at that frame: MuJoCo's own render
-(offscreen OpenGL: ``MUJOCO_GL=egl`` first, then ``osmesa``; the panel is left out if
-neither works) and the element partition as the model sees it: nodes at element
-centroids (area ~ mass, grey for static geometry), edges between elements that share
-a face, one colour per body.
+:func:`draw_frame` draws one recorded frame in two panels: MuJoCo's own render
+(offscreen OpenGL, see :func:`gl_backend`; the panel is left out if no backend works)
+and the element partition as the model sees it: nodes at element centroids (area ~
+mass, grey for static geometry), edges between elements that share a face, one colour
+per body. Which frame to draw is the caller's choice: ``python -m mdgs.data.draw``
+simulates one per scene (see :mod:`mdgs.data.draw`).
 """
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["draw_scene", "main"]
+from mdgs.scenes._spec import SceneSpec
+
+__all__ = ["draw_frame", "gl_backend"]
 
 
 _PROBE = (
@@ -28,11 +27,11 @@ _PROBE = (
 )
 
 
-def _gl_backend() -> str | None:
-    """An offscreen OpenGL backend that works here (probed in subprocesses), or None.
+def gl_backend() -> str | None:
+    """An offscreen OpenGL backend that works here (``egl``, then ``osmesa``), or None.
 
-    MuJoCo picks its backend from MUJOCO_GL when it is first imported, so the probe
-    runs in a fresh interpreter and :func:`main` re-executes itself with the winner.
+    MuJoCo picks its backend from MUJOCO_GL when it is first imported, so the probe runs
+    in fresh interpreters and a caller re-executes itself with the winner.
     """
     import subprocess
 
@@ -66,31 +65,49 @@ def _render(model, data, lookat, distance, width=480, height=400):
         return r.render()
 
 
-def draw_scene(name: str, out: Path, frame: int = 40, gl: str | None = None) -> Path:
-    """Write ``out/<name>.png`` and return its path."""
+def draw_frame(
+    spec: SceneSpec,
+    mjcf: str,
+    partition,
+    state: dict[str, np.ndarray],
+    frame: int,
+    out: Path,
+    gl: str | None = None,
+) -> Path:
+    """Write ``out/<spec.name>.png`` of one frame and return its path.
+
+    Parameters
+    ----------
+    spec, mjcf
+        The scene and its MJCF text (as simulated).
+    partition
+        Its :class:`mdgs.partition.Partition` (``static``, ``body``, ``mass``,
+        ``adjacency``, ``n_nodes``).
+    state
+        The frame's recorded arrays (names of :mod:`mdgs.data.schema`): ``node_pos``
+        ``[N, 3]``, ``qpos`` ``[nq]``, ``qvel`` ``[nv]`` and ``time`` (s).
+    frame
+        Its index, for the title.
+    gl
+        The OpenGL backend MuJoCo was imported with, or None to draw the graph only.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import mujoco
 
-    from mdgs.data.engine import load_scene, simulate
-    from mdgs.scenes import SCENES
-
-    spec = SCENES[name]
-    sc = load_scene(spec)
-    fr = simulate(sc, "train", [0], seed=0, n_frames=frame + 1)
-    part = sc.inst.partition
-    x = fr["node_pos"][0, frame]
+    part = partition
+    x = state["node_pos"]
     moving = ~part.static
     centre = x[moving].mean(0)
     extent = float(np.ptp(x[moving], axis=0).max()) + 0.15
     panels = 2 if gl else 1
     fig = plt.figure(figsize=(5.2 * panels, 4.6), dpi=100)
     if gl:
-        m = mujoco.MjModel.from_xml_string(sc.mjcf)
+        m = mujoco.MjModel.from_xml_string(mjcf)
         d = mujoco.MjData(m)
-        d.qpos[:], d.qvel[:] = fr["qpos"][0, frame], fr["qvel"][0, frame]
+        d.qpos[:], d.qvel[:] = state["qpos"], state["qvel"]
         mujoco.mj_forward(m, d)
         ax0 = fig.add_subplot(1, 2, 1)
         ax0.imshow(_render(m, d, centre, 1.6 * extent + 0.4))
@@ -132,37 +149,10 @@ def draw_scene(name: str, out: Path, frame: int = 40, gl: str | None = None) -> 
     ax.set_zlabel("z (m)", fontsize=8)
     ax.tick_params(labelsize=7)
     ax.set_title(f"{part.n_nodes} elements, {len(part.adjacency)} face edges", fontsize=10)
-    fig.suptitle(f"{name} (frame {frame}, t = {fr['time'][0, frame]:.2f} s)", fontsize=11)
+    fig.suptitle(f"{spec.name} (frame {frame}, t = {state['time']:.2f} s)", fontsize=11)
     fig.tight_layout()
     out.mkdir(parents=True, exist_ok=True)
-    path = out / f"{name}.png"
+    path = out / f"{spec.name}.png"
     fig.savefig(path)
     plt.close(fig)
     return path
-
-
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description="Draw the scenes (MuJoCo render + element graph).")
-    ap.add_argument("--out", type=Path, default=Path("docs/img/scenes"))
-    ap.add_argument("--frame", type=int, default=40)
-    ap.add_argument("scenes", nargs="*")
-    a = ap.parse_args(argv)
-    if "MUJOCO_GL" not in os.environ:
-        backend = _gl_backend()
-        env = {**os.environ, "MUJOCO_GL": backend or "disabled"}
-        os.execve(
-            sys.executable,
-            [sys.executable, "-m", "mdgs.scenes.draw", *(sys.argv[1:] if argv is None else argv)],
-            env,
-        )
-    gl = os.environ["MUJOCO_GL"] if os.environ["MUJOCO_GL"] in ("egl", "osmesa", "glfw") else None
-    if gl is None:
-        print("no OpenGL backend (tried egl, osmesa): drawing element graphs only", file=sys.stderr)
-    from mdgs.scenes import SCENES
-
-    for name in a.scenes or list(SCENES):
-        print(draw_scene(name, a.out, a.frame, gl))
-
-
-if __name__ == "__main__":
-    main()

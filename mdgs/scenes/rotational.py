@@ -18,20 +18,27 @@ vertical and a small tilt; rotor torque and hinge targets are smooth random sign
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-from mdgs.scenes._mjcf import Mjcf, lift_out_of_contact
-from mdgs.scenes.controls import OpenLoop, smooth_signal, smooth_targets
+from mdgs.scenes._mjcf import (
+    STATIC_RGBA,
+    Mjcf,
+    actuator_names,
+    at_rest,
+    lift_out_of_contact,
+    place_free,
+)
+from mdgs.scenes._spec import SceneBuilder
+from mdgs.scenes.controls import smooth_signal, smooth_targets
 
 __all__ = ["RotationalBody"]
 
 
 @dataclass(frozen=True)
-class RotationalBody:
+class RotationalBody(SceneBuilder):
     """Parameters of the rotational-body scenes (SI units)."""
 
     hinges: str = "none"
@@ -56,137 +63,58 @@ class RotationalBody:
         doc = Mjcf(f"rotational-{self.hinges}", timestep=self.timestep)
         w = doc.world
         for i, (x, y) in enumerate([(0.45, 0.1), (-0.3, -0.4)]):
-            doc.el(
-                w,
-                "geom",
-                name=f"post{i}",
-                type="cylinder",
-                size=(0.05, 0.1),
-                pos=(x, y, 0.1),
-                rgba=(0.55, 0.5, 0.45, 1),
-            )
-        hub = doc.body(w, "hub", pos=(0, 0, self.base_half_height))
-        doc.el(hub, "freejoint", name="root")
+            doc.geom(w, f"post{i}", "cylinder", size=(0.05, 0.1), pos=(x, y, 0.1), rgba=STATIC_RGBA)
+        hub = doc.free_body("hub", pos=(0, 0, self.base_half_height), joint="root")
         d = self.density
-        doc.el(
-            hub,
-            "geom",
-            name="base",
-            type="cylinder",
-            size=(self.base_radius, self.base_half_height),
-            density=d,
-            rgba=(0.6, 0.65, 0.75, 1),
-        )
-        col_bottom = self.base_half_height
-        split = self.hinges == "center"
-        L = self.column_half_length
-        if split:
-            doc.el(
-                hub,
-                "geom",
-                name="column_low",
-                type="cylinder",
-                size=(self.column_radius, L / 2),
-                pos=(0, 0, col_bottom + L / 2),
-                density=d,
-                rgba=(0.6, 0.65, 0.75, 1),
-            )
-            upper = doc.body(hub, "upper", pos=(0, 0, col_bottom + L))
-            doc.el(upper, "joint", name="fold", type="hinge", axis=(1, 0, 0), range=(-1.0, 1.0))
-            doc.el(
-                upper,
-                "geom",
-                name="column_up",
-                type="cylinder",
-                size=(self.column_radius, L / 2),
-                pos=(0, 0, L / 2),
-                density=d,
+        hub_rgba, rotor_rgba = (0.6, 0.65, 0.75, 1), (0.85, 0.45, 0.2, 1)
+        base = (self.base_radius, self.base_half_height)
+        doc.geom(hub, "base", "cylinder", size=base, density=d, rgba=hub_rgba)
+        z0, L, r = self.base_half_height, self.column_half_length, self.column_radius
+        if self.hinges == "center":
+            doc.geom(
+                hub, "column_low", "cylinder", size=(r, L / 2), pos=(0, 0, z0 + L / 2), density=d,
+                rgba=hub_rgba,
+            )  # fmt: skip
+            upper = doc.body(hub, "upper", pos=(0, 0, z0 + L))
+            doc.hinge(upper, "fold", (1, 0, 0), range=(-1.0, 1.0))
+            doc.geom(
+                upper, "column_up", "cylinder", size=(r, L / 2), pos=(0, 0, L / 2), density=d,
                 rgba=(0.5, 0.55, 0.7, 1),
-            )
+            )  # fmt: skip
             top, top_z = upper, L
-            doc.el(
-                doc.actuator,
-                "motor",
-                name="fold",
-                joint="fold",
-                ctrlrange=(-self.fold_torque, self.fold_torque),
-            )
+            doc.actuate("motor", "fold", "fold", ctrlrange=(-self.fold_torque, self.fold_torque))
         else:
-            doc.el(
-                hub,
-                "geom",
-                name="column",
-                type="cylinder",
-                size=(self.column_radius, L),
-                pos=(0, 0, col_bottom + L),
-                density=d,
-                rgba=(0.6, 0.65, 0.75, 1),
+            doc.geom(
+                hub, "column", "cylinder", size=(r, L), pos=(0, 0, z0 + L), density=d, rgba=hub_rgba
             )
-            top, top_z = hub, col_bottom + 2 * L
-        rotor = doc.body(top, "rotor", pos=(0, 0, top_z + self.rotor_half_thickness + 0.002))
-        doc.el(rotor, "joint", name="bearing", type="hinge", axis=(0, 0, 1))
-        doc.el(
-            rotor,
-            "geom",
-            name="disc",
-            type="cylinder",
-            size=(self.rotor_radius, self.rotor_half_thickness),
-            density=d,
-            rgba=(0.85, 0.45, 0.2, 1),
-        )
-        doc.el(
-            rotor,
-            "geom",
-            name="boss",
-            type="cylinder",
-            size=(0.03, 0.02),
-            pos=(0, 0, self.rotor_half_thickness + 0.02),
-            density=d,
-            rgba=(0.85, 0.45, 0.2, 1),
-        )
-        doc.el(
-            doc.actuator,
-            "motor",
-            name="bearing",
-            joint="bearing",
-            ctrlrange=(-self.rotor_torque, self.rotor_torque),
-        )
+            top, top_z = hub, z0 + 2 * L
+        t = self.rotor_half_thickness
+        rotor = doc.body(top, "rotor", pos=(0, 0, top_z + t + 0.002))
+        doc.hinge(rotor, "bearing", (0, 0, 1))
+        doc.geom(rotor, "disc", "cylinder", size=(self.rotor_radius, t), density=d, rgba=rotor_rgba)
+        doc.geom(
+            rotor, "boss", "cylinder", size=(0.03, 0.02), pos=(0, 0, t + 0.02), density=d,
+            rgba=rotor_rgba,
+        )  # fmt: skip
+        limit = (-self.rotor_torque, self.rotor_torque)
+        doc.actuate("motor", "bearing", "bearing", ctrlrange=limit)
         if self.hinges == "side":
             for s, name in ((1, "arm_pos"), (-1, "arm_neg")):
-                arm = doc.body(hub, name, pos=(s * self.base_radius, 0, self.base_half_height))
-                doc.el(
-                    arm,
-                    "joint",
-                    name=f"{name}_hinge",
-                    type="hinge",
-                    axis=(0, 1, 0),
-                    range=(-1.4, 1.4),
-                )
-                doc.el(
-                    arm,
-                    "geom",
-                    name=name,
-                    type="capsule",
-                    fromto=(0, 0, 0, s * 2 * self.arm_half_length, 0, 0),
-                    size=self.arm_radius,
-                    density=d,
-                    rgba=(0.4, 0.6, 0.4, 1),
-                )
-                doc.el(
-                    doc.actuator,
-                    "position",
-                    name=name,
-                    joint=f"{name}_hinge",
-                    kp=6.0,
-                    kv=0.15,
-                    ctrlrange=(-1.2, 1.2),
+                arm = doc.body(hub, name, pos=(s * self.base_radius, 0, z0))
+                doc.hinge(arm, f"{name}_hinge", (0, 1, 0), range=(-1.4, 1.4))
+                doc.geom(
+                    arm, name, "capsule", fromto=(0, 0, 0, s * 2 * self.arm_half_length, 0, 0),
+                    size=self.arm_radius, density=d, rgba=(0.4, 0.6, 0.4, 1),
+                )  # fmt: skip
+                doc.actuate(
+                    "position", name, f"{name}_hinge", kp=6.0, kv=0.15, ctrlrange=(-1.2, 1.2)
                 )
         return doc.xml()
 
     def initial_state(
         self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator
     ) -> None:
-        data.qpos[:] = model.qpos0
+        at_rest(model, data)
         # on its rim: tilt about a random horizontal axis, spin about the vertical
         tilt = rng.uniform(0.1, self.tilt_max)
         heading = rng.uniform(-np.pi, np.pi)
@@ -196,9 +124,8 @@ class RotationalBody:
         mujoco.mju_quat2Mat(R, q)
         up = R.reshape(3, 3)[:, 2]
         rim = self.base_radius * np.sqrt(max(0.0, 1 - up[2] ** 2)) + self.base_half_height * up[2]
-        data.qpos[0:3] = [rng.uniform(-0.05, 0.05), rng.uniform(-0.05, 0.05), rim + 1e-4]
-        data.qpos[3:7] = q
-        data.qvel[:] = 0
+        x, y = rng.uniform(-0.05, 0.05), rng.uniform(-0.05, 0.05)
+        place_free(model, data, "root", [x, y, rim + 1e-4], q)
         spin_world = (
             np.array([0.0, 0.0, rng.uniform(-1, 1) * self.spin_max])
             + np.r_[rng.normal(0, 0.5, 2), 0]
@@ -208,26 +135,18 @@ class RotationalBody:
         data.qvel[model.jnt_dofadr[model.joint("bearing").id]] = rng.uniform(-100, 100)
         lift_out_of_contact(model, data, 2)  # the arms may reach below the rim
 
-    def controller(
-        self,
-        model: mujoco.MjModel,
-        rngs: Sequence[np.random.Generator],
-        n_frames: int,
-        qpos0: np.ndarray,
-    ) -> OpenLoop:
-        dt = self.timestep * self.substeps
-        names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in range(model.nu)]
+    def controls(
+        self, model: mujoco.MjModel, rng: np.random.Generator, qpos0: np.ndarray, n_frames: int
+    ) -> np.ndarray:
+        """Rotor and fold torques: smooth signals; arm servos: smooth targets in range."""
+        dt = self.frame_dt
         lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
-
-        def make(rng):
-            u = np.zeros((n_frames, model.nu))
-            for a, name in enumerate(names):
-                if name in ("bearing", "fold"):
-                    u[:, a] = hi[a] * smooth_signal(rng, n_frames, dt, 1, fmin=0.3, fmax=2.5)[:, 0]
-                else:
-                    u[:, a] = smooth_targets(
-                        rng, n_frames, dt, lo[a : a + 1], hi[a : a + 1], fmin=0.5, fmax=3.0
-                    )[:, 0]
-            return u
-
-        return OpenLoop(np.stack([make(r) for r in rngs]))
+        u = np.zeros((n_frames, model.nu))
+        for a, name in enumerate(actuator_names(model)):
+            if name in ("bearing", "fold"):
+                u[:, a] = hi[a] * smooth_signal(rng, n_frames, dt, 1, fmin=0.3, fmax=2.5)[:, 0]
+            else:
+                u[:, a] = smooth_targets(
+                    rng, n_frames, dt, lo[a : a + 1], hi[a : a + 1], fmin=0.5, fmax=3.0
+                )[:, 0]
+        return u

@@ -18,14 +18,14 @@ the thrown box with everything.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-from mdgs.scenes._mjcf import Mjcf, box_volume, capsule_volume
-from mdgs.scenes.controls import OpenLoop, smooth_targets
+from mdgs.scenes._mjcf import Mjcf, at_rest, box_volume, capsule_volume, place_free
+from mdgs.scenes._spec import SceneBuilder
+from mdgs.scenes.controls import smooth_targets
 
 __all__ = ["SpaceRobot"]
 
@@ -42,7 +42,7 @@ _GRIPPER = (0.06, 0.02, 0.03)  # half sizes of the gripper block (m)
 
 
 @dataclass(frozen=True)
-class SpaceRobot:
+class SpaceRobot(SceneBuilder):
     """Parameters of the space-robot scenes (SI units)."""
 
     arms: int = 1
@@ -60,142 +60,78 @@ class SpaceRobot:
 
     def mjcf(self) -> str:
         doc = Mjcf("space-robot", timestep=self.timestep, gravity=(0, 0, 0), floor=False)
-        w = doc.world
-        base = doc.body(w, "base", pos=(0, 0, 1.5))
-        doc.el(base, "freejoint", name="root")
-        doc.el(
-            base,
-            "geom",
-            name="base",
-            type="box",
-            size=(self.base_half,) * 3,
-            mass=self.base_mass,
-            rgba=(0.8, 0.75, 0.45, 1),
-        )
+        base = doc.free_object(
+            "base", "box", pos=(0, 0, 1.5), joint="root", size=(self.base_half,) * 3,
+            mass=self.base_mass, rgba=(0.8, 0.75, 0.45, 1),
+        )  # fmt: skip
         for k in range(self.arms):
             s = 1 if k == 0 else -1
             tag = "a" if k == 0 else "b"
             mount = doc.body(
-                base,
-                f"{tag}_mount",
-                pos=(s * (self.base_half + 0.05), 0, 0),
+                base, f"{tag}_mount", pos=(s * (self.base_half + 0.05), 0, 0),
                 euler=(0, s * np.pi / 2, 0),
-            )
-            doc.el(
-                mount,
-                "geom",
-                name=f"{tag}_mount",
-                type="cylinder",
-                size=(0.06, 0.05),
-                mass=2.0,
+            )  # fmt: skip
+            doc.geom(
+                mount, f"{tag}_mount", "cylinder", size=(0.06, 0.05), mass=2.0,
                 rgba=(0.4, 0.4, 0.45, 1),
-            )
+            )  # fmt: skip
             parent = mount
             offset = (0, 0, 0.05)
             for name, axis, _off, vec, rad, mass, rng in _ARM:
-                body = doc.body(parent, f"{tag}_{name}", pos=offset)
-                doc.el(
-                    body,
-                    "joint",
-                    name=f"{tag}_{name}",
-                    type="hinge",
-                    axis=axis,
-                    range=rng,
-                    armature=self.armature,
-                )
+                link = f"{tag}_{name}"
+                body = doc.body(parent, link, pos=offset)
+                doc.hinge(body, link, axis, range=rng, armature=self.armature)
                 # one density per body (the partition's uniform-density elements match MuJoCo exactly)
                 length = float(np.linalg.norm(vec))
                 volume = capsule_volume(rad, length / 2) + (
                     box_volume(_GRIPPER) if name == "flange" else 0.0
                 )
                 rho = mass / volume
-                doc.el(
-                    body,
-                    "geom",
-                    name=f"{tag}_{name}",
-                    type="capsule",
-                    fromto=(0, 0, 0) + tuple(vec),
-                    size=rad,
-                    density=rho,
+                doc.geom(
+                    body, link, "capsule", fromto=(0, 0, 0) + tuple(vec), size=rad, density=rho,
                     rgba=(0.75, 0.78, 0.82, 1),
-                )
+                )  # fmt: skip
                 if name == "flange":
-                    doc.el(
-                        body,
-                        "geom",
-                        name=f"{tag}_gripper",
-                        type="box",
-                        size=_GRIPPER,
-                        pos=(0, 0, 0.11),
-                        density=rho,
-                        rgba=(0.3, 0.3, 0.35, 1),
-                    )
-                doc.el(
-                    doc.actuator,
-                    "position",
-                    name=f"{tag}_{name}",
-                    joint=f"{tag}_{name}",
-                    kp=self.kp,
-                    kv=self.kv,
-                    ctrlrange=rng,
-                )
+                    doc.geom(
+                        body, f"{tag}_gripper", "box", size=_GRIPPER, pos=(0, 0, 0.11),
+                        density=rho, rgba=(0.3, 0.3, 0.35, 1),
+                    )  # fmt: skip
+                doc.actuate("position", link, link, kp=self.kp, kv=self.kv, ctrlrange=rng)
                 parent, offset = body, vec
         if self.strike:
-            box = doc.body(w, "projectile", pos=(2.0, 0, 1.5))
-            doc.el(box, "freejoint", name="projectile")
-            doc.el(
-                box,
-                "geom",
-                name="projectile",
-                type="box",
-                size=(0.08, 0.08, 0.08),
-                mass=self.projectile_mass,
-                rgba=(0.85, 0.3, 0.25, 1),
-            )
+            doc.free_object(
+                "projectile", "box", pos=(2.0, 0, 1.5), size=(0.08, 0.08, 0.08),
+                mass=self.projectile_mass, rgba=(0.85, 0.3, 0.25, 1),
+            )  # fmt: skip
         return doc.xml()
 
     def initial_state(
         self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator
     ) -> None:
-        data.qpos[:] = model.qpos0
-        data.qvel[:] = 0
+        at_rest(model, data)
         for a in range(model.nu):
             j = model.actuator_trnid[a, 0]
             lo, hi = model.jnt_range[j]
             data.qpos[model.jnt_qposadr[j]] = rng.uniform(0.5 * lo, 0.5 * hi)
         data.qvel[3:6] = rng.normal(0, 0.02, 3)  # slow tumble of the base
         if self.strike:
-            pid = model.joint("projectile").id
-            adr, dadr = model.jnt_qposadr[pid], model.jnt_dofadr[pid]
+            dadr = model.jnt_dofadr[model.joint("projectile").id]
             d = rng.normal(size=3)
             d /= np.linalg.norm(d)
             start = np.array([0, 0, 1.5]) + 1.6 * d
             aim = np.array([0, 0, 1.5]) + rng.normal(0, 0.25, 3)
             v = aim - start
-            data.qpos[adr : adr + 3] = start
-            data.qpos[adr + 3 : adr + 7] = [1, 0, 0, 0]
+            place_free(model, data, "projectile", start, [1, 0, 0, 0])
             data.qvel[dadr : dadr + 3] = rng.uniform(1.0, 3.0) * v / np.linalg.norm(v)
             data.qvel[dadr + 3 : dadr + 6] = rng.normal(0, 2, 3)
         # start the servos at the current joint angles (no initial jerk)
         for a in range(model.nu):
             data.ctrl[a] = data.qpos[model.jnt_qposadr[model.actuator_trnid[a, 0]]]
 
-    def controller(
-        self,
-        model: mujoco.MjModel,
-        rngs: Sequence[np.random.Generator],
-        n_frames: int,
-        qpos0: np.ndarray,
-    ) -> OpenLoop:
-        dt = self.timestep * self.substeps
+    def controls(
+        self, model: mujoco.MjModel, rng: np.random.Generator, qpos0: np.ndarray, n_frames: int
+    ) -> np.ndarray:
+        """Smooth joint targets, starting at the initial joint angles (no initial jerk)."""
         lo, hi = model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
-        qadr = model.jnt_qposadr[model.actuator_trnid[:, 0]]
-        # targets start at each trajectory's initial joint angles (no initial jerk)
-        return OpenLoop(
-            np.stack(
-                [
-                    smooth_targets(r, n_frames, dt, lo, hi, start=q[qadr], fmin=0.1, fmax=0.8)
-                    for r, q in zip(rngs, qpos0, strict=True)
-                ]
-            )
-        )
+        q0 = qpos0[model.jnt_qposadr[model.actuator_trnid[:, 0]]]
+        return smooth_targets(rng, n_frames, self.frame_dt, lo, hi, start=q0, fmin=0.1, fmax=0.8)

@@ -15,90 +15,49 @@ targets.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-from mdgs.scenes._mjcf import Mjcf, box_volume, capsule_volume, cylinder_volume
-from mdgs.scenes.controls import OpenLoop, smooth_signal, smooth_targets
+from mdgs.scenes._mjcf import (
+    WHEELS,
+    Mjcf,
+    actuator_names,
+    at_rest,
+    box_volume,
+    capsule_volume,
+    cylinder_volume,
+    place_free,
+    yaw_quat,
+)
+from mdgs.scenes._spec import SceneBuilder
+from mdgs.scenes.controls import smooth_signal, smooth_targets
 
 __all__ = ["UR5Husky"]
 
-# UR5 links: (name, joint axis, position in the parent, geom, mass kg, kp, kv, armature, range)
+# UR5 links: name, joint axis, position in the parent, geom (type, radius, half length,
+# position), mass (kg), servo kp (N m/rad), kv (N m s/rad), armature (kg m^2), joint range (rad)
+# fmt: off
 _UR5 = (
-    (
-        "shoulder",
-        (0, 0, 1),
-        (0, 0, 0.089159),
-        ("cylinder", 0.06, 0.06, (0, 0, 0)),
-        3.7,
-        400.0,
-        40.0,
-        0.4,
-        (-3.1, 3.1),
-    ),
-    (
-        "upper_arm",
-        (0, 1, 0),
-        (0, 0.13585, 0),
-        ("capsule", 0.054, 0.2125, (0, 0, 0.2125)),
-        8.393,
-        400.0,
-        40.0,
-        0.4,
-        (-1.6, 1.6),
-    ),
-    (
-        "forearm",
-        (0, 1, 0),
-        (0, -0.1197, 0.425),
-        ("capsule", 0.04, 0.196, (0, 0, 0.196)),
-        2.275,
-        200.0,
-        20.0,
-        0.2,
-        (-2.4, 2.4),
-    ),
-    (
-        "wrist_1",
-        (0, 1, 0),
-        (0, 0, 0.39225),
-        ("cylinder", 0.038, 0.047, (0, 0.047, 0)),
-        1.219,
-        40.0,
-        4.0,
-        0.05,
-        (-3.1, 3.1),
-    ),
-    (
-        "wrist_2",
-        (0, 0, 1),
-        (0, 0.093, 0),
-        ("cylinder", 0.038, 0.047, (0, 0, 0.047)),
-        1.219,
-        40.0,
-        4.0,
-        0.05,
-        (-3.1, 3.1),
-    ),
-    (
-        "wrist_3",
-        (0, 1, 0),
-        (0, 0, 0.09465),
-        ("cylinder", 0.032, 0.041, (0, 0.041, 0)),
-        0.1879,
-        20.0,
-        2.0,
-        0.02,
-        (-3.1, 3.1),
-    ),
+    ("shoulder", (0, 0, 1), (0, 0, 0.089159), ("cylinder", 0.06, 0.06, (0, 0, 0)),
+     3.7, 400.0, 40.0, 0.4, (-3.1, 3.1)),
+    ("upper_arm", (0, 1, 0), (0, 0.13585, 0), ("capsule", 0.054, 0.2125, (0, 0, 0.2125)),
+     8.393, 400.0, 40.0, 0.4, (-1.6, 1.6)),
+    ("forearm", (0, 1, 0), (0, -0.1197, 0.425), ("capsule", 0.04, 0.196, (0, 0, 0.196)),
+     2.275, 200.0, 20.0, 0.2, (-2.4, 2.4)),
+    ("wrist_1", (0, 1, 0), (0, 0, 0.39225), ("cylinder", 0.038, 0.047, (0, 0.047, 0)),
+     1.219, 40.0, 4.0, 0.05, (-3.1, 3.1)),
+    ("wrist_2", (0, 0, 1), (0, 0.093, 0), ("cylinder", 0.038, 0.047, (0, 0, 0.047)),
+     1.219, 40.0, 4.0, 0.05, (-3.1, 3.1)),
+    ("wrist_3", (0, 1, 0), (0, 0, 0.09465), ("cylinder", 0.032, 0.041, (0, 0.041, 0)),
+     0.1879, 20.0, 2.0, 0.02, (-3.1, 3.1)),
 )
+# fmt: on
 
 
 @dataclass(frozen=True)
-class UR5Husky:
+class UR5Husky(SceneBuilder):
     """Parameters of the UR5-Husky scenes (SI units)."""
 
     interaction: bool = False
@@ -120,102 +79,48 @@ class UR5Husky:
         )
         w = doc.world
         if self.interaction:
-            doc.el(
-                w,
-                "geom",
-                name="table",
-                type="box",
-                size=(0.3, 0.45, 0.225),
-                pos=(1.15, 0, 0.225),
+            doc.geom(
+                w, "table", "box", size=(0.3, 0.45, 0.225), pos=(1.15, 0, 0.225),
                 rgba=(0.55, 0.45, 0.35, 1),
-            )
-            box = doc.body(w, "box", pos=(0.95, 0.18, 0.45 + 0.05))
-            doc.el(box, "freejoint", name="box")
-            doc.el(
-                box,
-                "geom",
-                name="box",
-                type="box",
-                size=(0.05, 0.05, 0.05),
-                mass=1.0,
+            )  # fmt: skip
+            doc.free_object(
+                "box", "box", pos=(0.95, 0.18, 0.45 + 0.05), size=(0.05, 0.05, 0.05), mass=1.0,
                 rgba=(0.85, 0.3, 0.25, 1),
-            )
-            can = doc.body(w, "can", pos=(0.95, -0.18, 0.45 + 0.06))
-            doc.el(can, "freejoint", name="can")
-            doc.el(
-                can,
-                "geom",
-                name="can",
-                type="cylinder",
-                size=(0.04, 0.06),
-                mass=0.6,
+            )  # fmt: skip
+            doc.free_object(
+                "can", "cylinder", pos=(0.95, -0.18, 0.45 + 0.06), size=(0.04, 0.06), mass=0.6,
                 rgba=(0.3, 0.6, 0.35, 1),
-            )
+            )  # fmt: skip
         ch = np.asarray(self.chassis_half)
-        z0 = self.wheel_radius + 0.02
-        base = doc.body(w, "husky", pos=(0, 0, z0))
-        doc.el(base, "freejoint", name="root")
+        base = doc.free_body("husky", pos=(0, 0, self.wheel_radius + 0.02), joint="root")
         mount = (0.075, 0.05)  # UR5 base cylinder: radius, half height
         rho = self.chassis_mass / (box_volume(ch) + cylinder_volume(*mount))
-        doc.el(
-            base, "geom", name="chassis", type="box", size=ch, density=rho, rgba=(0.85, 0.7, 0.1, 1)
-        )
-        doc.el(
-            base,
-            "geom",
-            name="ur5_base",
-            type="cylinder",
-            size=mount,
-            pos=(0.15, 0, ch[2] + mount[1]),
-            density=rho,
+        doc.geom(base, "chassis", "box", size=ch, density=rho, rgba=(0.85, 0.7, 0.1, 1))
+        doc.geom(
+            base, "ur5_base", "cylinder", size=mount, pos=(0.15, 0, ch[2] + mount[1]), density=rho,
             rgba=(0.6, 0.6, 0.65, 1),
-        )
-        for tag, x, y in (("fl", 1, 1), ("fr", 1, -1), ("rl", -1, 1), ("rr", -1, -1)):
-            wheel = doc.body(
-                base, f"wheel_{tag}", pos=(x * self.wheelbase_half, y * self.track_half, -0.02)
-            )
-            doc.el(wheel, "joint", name=f"spin_{tag}", type="hinge", axis=(0, 1, 0))
-            doc.el(
-                wheel,
-                "geom",
-                name=f"wheel_{tag}",
-                type="cylinder",
-                size=(self.wheel_radius, self.wheel_half_width),
-                euler=(np.pi / 2, 0, 0),
-                mass=self.wheel_mass,
-                friction=(1.0, 0.005, 0.0001),
-                rgba=(0.12, 0.12, 0.12, 1),
-            )
-            doc.el(
-                doc.actuator,
-                "velocity",
-                name=f"drive_{tag}",
-                joint=f"spin_{tag}",
-                kv=self.drive_kv,
-                ctrlrange=(-12, 12),
-                forcerange=(-self.drive_torque, self.drive_torque),
-            )
+        )  # fmt: skip
+        drive = (self.drive_kv, 12, self.drive_torque)  # targets within +-12 rad/s
+        for tag, x, y in WHEELS:
+            doc.wheel(
+                base, tag, (x * self.wheelbase_half, y * self.track_half, -0.02), self.wheel_radius,
+                self.wheel_half_width, drive=drive, mass=self.wheel_mass,
+                friction=(1.0, 0.005, 0.0001), rgba=(0.12, 0.12, 0.12, 1),
+            )  # fmt: skip
         parent, pos = base, (0.15, 0, ch[2] + 2 * mount[1])
         for name, axis, offset, (gtype, r, hl, gpos), mass, kp, kv, arm, rng in _UR5:
             body = doc.body(
                 parent, name, pos=tuple(np.add(pos, offset)) if parent is base else offset
             )
-            doc.el(body, "joint", name=name, type="hinge", axis=axis, range=rng, armature=arm)
+            doc.hinge(body, name, axis, range=rng, armature=arm)
             vol = capsule_volume(r, hl) if gtype == "capsule" else cylinder_volume(r, hl)
             # cylinders of the wrist lie along their joint axis (y or z), capsules along the link (z)
             euler = (np.pi / 2, 0, 0) if (gtype == "cylinder" and axis == (0, 1, 0)) else (0, 0, 0)
-            doc.el(
-                body,
-                "geom",
-                name=name,
-                type=gtype,
-                size=(r, hl),
-                pos=gpos,
-                euler=euler,
-                density=mass / vol,
+            doc.geom(
+                body, name, gtype, size=(r, hl), pos=gpos, euler=euler, density=mass / vol,
                 rgba=(0.7, 0.75, 0.8, 1),
-            )
-            doc.el(doc.actuator, "position", name=name, joint=name, kp=kp, kv=kv, ctrlrange=rng)
+            )  # fmt: skip
+            doc.actuate("position", name, name, kp=kp, kv=kv, ctrlrange=rng)
             parent, pos = body, (0, 0, 0)
         return doc.xml()
 
@@ -232,18 +137,10 @@ class UR5Husky:
     def initial_state(
         self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator
     ) -> None:
-        data.qpos[:] = model.qpos0
-        data.qvel[:] = 0
+        at_rest(model, data)
         yaw = rng.uniform(-0.25, 0.25) if self.interaction else rng.uniform(-np.pi, np.pi)
-        q = np.zeros(4)
-        mujoco.mju_axisAngle2Quat(q, np.array([0, 0, 1.0]), yaw)
-        adr = model.jnt_qposadr[model.joint("root").id]
-        data.qpos[adr : adr + 3] = [
-            rng.uniform(-0.1, 0.1),
-            rng.uniform(-0.1, 0.1),
-            self.wheel_radius + 0.02 + 1e-4,
-        ]
-        data.qpos[adr + 3 : adr + 7] = q
+        x, y = rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1)
+        place_free(model, data, "root", [x, y, self.wheel_radius + 0.02 + 1e-4], yaw_quat(yaw))
         lo, hi = self._arm_box()
         qadr = [model.jnt_qposadr[model.joint(name).id] for name, *_ in _UR5]
         for _ in range(50):  # an arm pose that touches nothing (resampled from the same stream)
@@ -253,31 +150,24 @@ class UR5Husky:
             if all(data.contact[i].dist > -1e-3 for i in range(data.ncon)):
                 break
 
-    def controller(
-        self,
-        model: mujoco.MjModel,
-        rngs: Sequence[np.random.Generator],
-        n_frames: int,
-        qpos0: np.ndarray,
-    ) -> OpenLoop:
-        dt = self.timestep * self.substeps
-        names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in range(model.nu)]
+    def controls(
+        self, model: mujoco.MjModel, rng: np.random.Generator, qpos0: np.ndarray, n_frames: int
+    ) -> np.ndarray:
+        """Arm: smooth joint targets from the initial pose; base: smooth speed and yaw rate."""
+        dt = self.frame_dt
+        names = actuator_names(model)
         arm_idx = [names.index(n) for n, *_ in _UR5]
         qadr = np.array([model.jnt_qposadr[model.joint(n).id] for n, *_ in _UR5])
         lo, hi = self._arm_box()
-
-        def make(rng, q0):
-            u = np.zeros((n_frames, model.nu))
-            u[:, arm_idx] = smooth_targets(
-                rng, n_frames, dt, lo, hi, start=q0[qadr], fmin=0.1, fmax=0.6
-            )
-            s = smooth_signal(rng, n_frames, dt, 2, fmin=0.1, fmax=0.6)
-            v = (0.15 + 0.15 * s[:, 0]) if self.interaction else 0.8 * s[:, 0]  # m/s
-            yaw_rate = (0.2 if self.interaction else 0.8) * s[:, 1]  # rad/s
-            for a, name in enumerate(names):
-                if name.startswith("drive"):
-                    side = 1.0 if name.endswith("l") else -1.0
-                    u[:, a] = (v - side * yaw_rate * self.track_half) / self.wheel_radius
-            return u
-
-        return OpenLoop(np.stack([make(r, q) for r, q in zip(rngs, qpos0, strict=True)]))
+        u = np.zeros((n_frames, model.nu))
+        u[:, arm_idx] = smooth_targets(
+            rng, n_frames, dt, lo, hi, start=qpos0[qadr], fmin=0.1, fmax=0.6
+        )
+        s = smooth_signal(rng, n_frames, dt, 2, fmin=0.1, fmax=0.6)
+        v = (0.15 + 0.15 * s[:, 0]) if self.interaction else 0.8 * s[:, 0]  # m/s
+        yaw_rate = (0.2 if self.interaction else 0.8) * s[:, 1]  # rad/s
+        for a, name in enumerate(names):
+            if name.startswith("drive"):
+                side = 1.0 if name.endswith("l") else -1.0
+                u[:, a] = (v - side * yaw_rate * self.track_half) / self.wheel_radius
+        return u

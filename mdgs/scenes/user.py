@@ -14,21 +14,20 @@ unlimited). The integrator is forced to Euler (see ``notes`` in the file).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from mdgs.scenes._spec import SceneSpec
-from mdgs.scenes.controls import OpenLoop, smooth_targets
+from mdgs.scenes._spec import SceneBuilder, SceneSpec
+from mdgs.scenes.controls import smooth_targets
 
 __all__ = ["UserScene", "user_scene"]
 
 
 @dataclass(frozen=True)
-class UserScene:
+class UserScene(SceneBuilder):
     path: str
     timestep: float
     substeps: int = 10
@@ -44,20 +43,16 @@ class UserScene:
             mujoco.mj_resetDataKeyframe(model, data, 0)
         data.qvel[:] = data.qvel + rng.normal(0, self.velocity_noise, model.nv)
 
-    def controller(
-        self,
-        model: mujoco.MjModel,
-        rngs: Sequence[np.random.Generator],
-        n_frames: int,
-        qpos0: np.ndarray,
-    ) -> OpenLoop:
+    def controls(
+        self, model: mujoco.MjModel, rng: np.random.Generator, qpos0: np.ndarray, n_frames: int
+    ) -> np.ndarray:
+        """Smooth random signals inside each actuator's ctrlrange ([-1, 1] if unlimited)."""
+        if model.nu == 0:
+            return np.zeros((n_frames, 0))
         lim = model.actuator_ctrllimited.astype(bool)
         low = np.where(lim, model.actuator_ctrlrange[:, 0], -1.0)
         high = np.where(lim, model.actuator_ctrlrange[:, 1], 1.0)
-        dt = self.timestep * self.substeps
-        if model.nu == 0:
-            return OpenLoop(np.zeros((len(rngs), n_frames, 0)))
-        return OpenLoop(np.stack([smooth_targets(r, n_frames, dt, low, high) for r in rngs]))
+        return smooth_targets(rng, n_frames, self.frame_dt, low, high)
 
 
 def user_scene(path: str, substeps: int = 10) -> SceneSpec:

@@ -15,20 +15,30 @@ accelerates, brakes, reverses and turns; tyres slip when the torque exceeds fric
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
-from mdgs.scenes._mjcf import Mjcf, box_volume, lift_out_of_contact
-from mdgs.scenes.controls import OpenLoop, smooth_signal
+from mdgs.scenes._mjcf import (
+    STATIC_RGBA,
+    WHEELS,
+    Mjcf,
+    actuator_names,
+    at_rest,
+    box_volume,
+    lift_out_of_contact,
+    place_free,
+    yaw_quat,
+)
+from mdgs.scenes._spec import SceneBuilder
+from mdgs.scenes.controls import smooth_signal
 
 __all__ = ["Vehicle"]
 
 
 @dataclass(frozen=True)
-class Vehicle:
+class Vehicle(SceneBuilder):
     """Parameters of the vehicle scenes (SI units)."""
 
     variant: str = "original"
@@ -55,174 +65,81 @@ class Vehicle:
     def mjcf(self) -> str:
         doc = Mjcf(f"vehicle-{self.variant}", timestep=self.timestep)
         w = doc.world
-        grey = (0.55, 0.5, 0.45, 1)
         if self.variant == "fixed_obstacle":
-            doc.el(
-                w,
-                "geom",
-                name="wall",
-                type="box",
-                size=(0.1, 0.9, 0.2),
-                pos=(1.9, 0.2, 0.2),
-                rgba=grey,
-            )
-            doc.el(
-                w,
-                "geom",
-                name="block",
-                type="box",
-                size=(0.2, 0.2, 0.15),
-                pos=(1.0, -0.9, 0.15),
-                euler=(0, 0, 0.5),
-                rgba=grey,
-            )
+            doc.geom(w, "wall", "box", size=(0.1, 0.9, 0.2), pos=(1.9, 0.2, 0.2), rgba=STATIC_RGBA)
+            doc.geom(
+                w, "block", "box", size=(0.2, 0.2, 0.15), pos=(1.0, -0.9, 0.15), euler=(0, 0, 0.5),
+                rgba=STATIC_RGBA,
+            )  # fmt: skip
         if self.variant == "movable_obstacle":
-            crate = doc.body(w, "crate", pos=(1.3, 0.0, 0.15))
-            doc.el(crate, "freejoint", name="crate")
-            doc.el(
-                crate,
-                "geom",
-                name="crate",
-                type="box",
-                size=(0.15, 0.15, 0.15),
-                mass=8.0,
+            doc.free_object(
+                "crate", "box", pos=(1.3, 0.0, 0.15), size=(0.15, 0.15, 0.15), mass=8.0,
                 rgba=(0.7, 0.5, 0.3, 1),
-            )
+            )  # fmt: skip
         ch, cab = np.asarray(self.chassis_half), np.asarray(self.cabin_half)
-        z0 = self.wheel_radius
-        car = doc.body(w, "chassis", pos=(0, 0, z0))
-        doc.el(car, "freejoint", name="root")
         rho = self.chassis_mass / (box_volume(ch) + box_volume(cab))
-        doc.el(
-            car, "geom", name="chassis", type="box", size=ch, density=rho, rgba=(0.2, 0.45, 0.75, 1)
-        )
-        doc.el(
-            car,
-            "geom",
-            name="cabin",
-            type="box",
-            size=cab,
-            pos=(-0.05, 0, ch[2] + cab[2]),
-            density=rho,
+        car = doc.free_object(
+            "chassis", "box", pos=(0, 0, self.wheel_radius), joint="root", size=ch, density=rho,
+            rgba=(0.2, 0.45, 0.75, 1),
+        )  # fmt: skip
+        doc.geom(
+            car, "cabin", "box", size=cab, pos=(-0.05, 0, ch[2] + cab[2]), density=rho,
             rgba=(0.25, 0.5, 0.8, 1),
-        )
-        for tag, x, y in (("fl", 1, 1), ("fr", 1, -1), ("rl", -1, 1), ("rr", -1, -1)):
+        )  # fmt: skip
+        steer = (-self.steer_limit, self.steer_limit)
+        for tag, x, y in WHEELS:
             pos = (x * self.wheelbase_half, y * self.track_half, 0)
             parent = car
-            if x > 0:  # front: a steering knuckle
+            if x > 0:  # front: a steering knuckle (kingpin: a short steel capsule, no collisions)
                 parent = doc.body(car, f"knuckle_{tag}", pos=pos)
-                doc.el(
-                    parent,
-                    "joint",
-                    name=f"steer_{tag}",
-                    type="hinge",
-                    axis=(0, 0, 1),
-                    range=(-self.steer_limit, self.steer_limit),
-                )
-                doc.el(
-                    parent,
-                    "geom",
-                    name=f"knuckle_{tag}",  # the kingpin: a short steel capsule, no collisions
-                    type="capsule",
-                    size=(0.015, 0.03),
-                    density=7800.0,
-                    contype=0,
-                    conaffinity=0,
-                    rgba=(0.3, 0.3, 0.3, 1),
-                )
-                doc.el(
-                    doc.actuator,
-                    "position",
-                    name=f"steer_{tag}",
-                    joint=f"steer_{tag}",
-                    kp=60.0,
-                    kv=3.0,
-                    ctrlrange=(-self.steer_limit, self.steer_limit),
+                doc.hinge(parent, f"steer_{tag}", (0, 0, 1), range=steer)
+                doc.geom(
+                    parent, f"knuckle_{tag}", "capsule", size=(0.015, 0.03), density=7800.0,
+                    contype=0, conaffinity=0, rgba=(0.3, 0.3, 0.3, 1),
+                )  # fmt: skip
+                doc.actuate(
+                    "position", f"steer_{tag}", f"steer_{tag}", kp=60.0, kv=3.0, ctrlrange=steer
                 )
                 pos = (0, 0, 0)
             bent = 0.2 if (self.variant == "damaged" and tag == "fr") else 0.0
-            r = self._radius(tag)
-            wheel = doc.body(
-                parent,
-                f"wheel_{tag}",
-                pos=(pos[0], pos[1], pos[2] - (self.wheel_radius - r)),
-                euler=(bent, 0, 0),
-            )
-            doc.el(wheel, "joint", name=f"spin_{tag}", type="hinge", axis=(0, 1, 0))
-            doc.el(
-                wheel,
-                "geom",
-                name=f"wheel_{tag}",
-                type="cylinder",
-                size=(r, self.wheel_half_width),
-                euler=(np.pi / 2, 0, 0),
-                mass=self.wheel_mass,
-                friction=(self.tyre_friction, 0.005, 0.0001),
-                rgba=(0.15, 0.15, 0.15, 1),
-            )
             dead = self.variant == "damaged" and tag == "rl"
-            if x < 0 and not dead:
-                doc.el(
-                    doc.actuator,
-                    "velocity",
-                    name=f"drive_{tag}",
-                    joint=f"spin_{tag}",
-                    kv=self.drive_kv,
-                    ctrlrange=(-self.max_wheel_speed, self.max_wheel_speed),
-                    forcerange=(-self.drive_torque, self.drive_torque),
-                )
+            driven = x < 0 and not dead
+            drive = (self.drive_kv, self.max_wheel_speed, self.drive_torque) if driven else None
+            r = self._radius(tag)
+            doc.wheel(
+                parent, tag, (pos[0], pos[1], pos[2] - (self.wheel_radius - r)), r,
+                self.wheel_half_width, euler=(bent, 0, 0), drive=drive, mass=self.wheel_mass,
+                friction=(self.tyre_friction, 0.005, 0.0001), rgba=(0.15, 0.15, 0.15, 1),
+            )  # fmt: skip
         contact = doc.el(doc.root, "contact")
-        for tag in (
-            "fl",
-            "fr",
-            "rl",
-            "rr",
-        ):  # a bent wheel may graze the chassis: not a contact we model
+        for tag, *_ in WHEELS:  # a bent wheel may graze the chassis: not a contact we model
             doc.el(contact, "exclude", body1="chassis", body2=f"wheel_{tag}")
         return doc.xml()
 
     def initial_state(
         self, model: mujoco.MjModel, data: mujoco.MjData, rng: np.random.Generator
     ) -> None:
-        data.qpos[:] = model.qpos0
-        data.qvel[:] = 0
+        at_rest(model, data)
         free_heading = self.variant == "original"
         yaw = rng.uniform(-np.pi, np.pi) if free_heading else rng.uniform(-0.35, 0.35)
-        q = np.zeros(4)
-        mujoco.mju_axisAngle2Quat(q, np.array([0, 0, 1.0]), yaw)
-        root = model.joint("root").id
-        a, da = model.jnt_qposadr[root], model.jnt_dofadr[root]
-        data.qpos[a : a + 3] = [
-            rng.uniform(-0.2, 0.2),
-            rng.uniform(-0.2, 0.2),
-            self.wheel_radius + 1e-4,
-        ]
-        data.qpos[a + 3 : a + 7] = q
+        x, y = rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2)
+        a = place_free(model, data, "root", [x, y, self.wheel_radius + 1e-4], yaw_quat(yaw))
+        da = model.jnt_dofadr[model.joint("root").id]
         v = rng.uniform(0.0, 1.5)
         data.qvel[da : da + 2] = v * np.array([np.cos(yaw), np.sin(yaw)])
-        for tag in ("fl", "fr", "rl", "rr"):
+        for tag, *_ in WHEELS:
             data.qvel[model.jnt_dofadr[model.joint(f"spin_{tag}").id]] = v / self._radius(tag)
         lift_out_of_contact(model, data, a + 2)  # the bent wheel reaches below the others
 
-    def controller(
-        self,
-        model: mujoco.MjModel,
-        rngs: Sequence[np.random.Generator],
-        n_frames: int,
-        qpos0: np.ndarray,
-    ) -> OpenLoop:
-        dt = self.timestep * self.substeps
-        names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, a) for a in range(model.nu)]
-
-        def make(rng):
-            throttle = smooth_signal(rng, n_frames, dt, 1, fmin=0.1, fmax=0.8)[:, 0]
-            speed = self.max_wheel_speed * (
-                0.45 + 0.55 * throttle
-            )  # mostly forward, sometimes reverse
-            steer = self.steer_limit * smooth_signal(rng, n_frames, dt, 1, fmin=0.1, fmax=1.0)[:, 0]
-            u = np.zeros((n_frames, model.nu))
-            for a, name in enumerate(names):
-                u[:, a] = speed if name.startswith("drive") else steer
-            return u
-
-        return OpenLoop(np.stack([make(r) for r in rngs]))
+    def controls(
+        self, model: mujoco.MjModel, rng: np.random.Generator, qpos0: np.ndarray, n_frames: int
+    ) -> np.ndarray:
+        """Throttle (wheel speed targets, mostly forward) and steering: smooth random signals."""
+        dt = self.frame_dt
+        throttle = smooth_signal(rng, n_frames, dt, 1, fmin=0.1, fmax=0.8)[:, 0]
+        speed = self.max_wheel_speed * (0.45 + 0.55 * throttle)  # mostly forward, sometimes reverse
+        steer = self.steer_limit * smooth_signal(rng, n_frames, dt, 1, fmin=0.1, fmax=1.0)[:, 0]
+        u = np.zeros((n_frames, model.nu))
+        for a, name in enumerate(actuator_names(model)):
+            u[:, a] = speed if name.startswith("drive") else steer
+        return u
