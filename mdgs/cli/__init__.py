@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import click
 import typer
 
-__all__ = ["app", "main", "fail", "progress_bar", "EXIT_HOLDS", "EXIT_REFUTED", "EXIT_ERROR"]
+__all__ = ["app", "main", "fail", "parse_share", "progress_bar", "EXIT_HOLDS", "EXIT_REFUTED", "EXIT_ERROR"]
 
 EXIT_HOLDS, EXIT_REFUTED, EXIT_ERROR = 0, 1, 2
 
@@ -80,6 +80,17 @@ def fail(msg: str) -> None:
     """A user error: one sentence on stderr, exit code 2, no traceback."""
     typer.echo(f"error: {msg.rstrip('.')}.", err=True)
     raise typer.Exit(EXIT_ERROR)
+
+
+def parse_share(text: str, flag: str) -> tuple[int, int]:
+    """``"I/N"`` -> ``(I, N)`` with ``0 <= I < N`` (a shard of a dataset, a share of a study's cells)."""
+    try:
+        i, n = (int(x) for x in text.split("/"))
+    except ValueError:
+        fail(f"{flag} '{text}' is not of the form I/N (for example 0/4)")
+    if not (n >= 1 and 0 <= i < n):
+        fail(f"{flag} {text} is out of range; use I/N with 0 <= I < N")
+    return i, n
 
 
 def progress_bar(*extra_columns):

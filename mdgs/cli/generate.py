@@ -6,19 +6,9 @@ from pathlib import Path
 
 import typer
 
-from mdgs.cli import app, fail, progress_bar
+from mdgs.cli import app, fail, parse_share, progress_bar
 
 _SCENE_HELP = "Scene name (see --list), or 'all' for every scene into OUT/<scene>/."
-
-
-def _parse_shard(text: str) -> tuple[int, int]:
-    try:
-        i, n = (int(x) for x in text.split("/"))
-    except ValueError:
-        fail(f"--shard '{text}' is not of the form I/N (for example 0/4)")
-    if not (n >= 1 and 0 <= i < n):
-        fail(f"--shard {text} is out of range; use I/N with 0 <= I < N")
-    return i, n
 
 
 def _list_scenes() -> None:
@@ -98,7 +88,7 @@ def generate(
     for name in names:
         if name and name not in SCENES:
             fail(f"unknown scene '{name}'; run `mdgs generate --list` to see the scenes")
-    shard_t = _parse_shard(shard)
+    shard_t = parse_share(shard, "--shard")
     for name in names:
         target = out / name if scene == "all" else out
         cfg = GenerateConfig(

@@ -6,17 +6,7 @@ from pathlib import Path
 
 import typer
 
-from mdgs.cli import app, fail, progress_bar
-
-
-def _share(text: str) -> tuple[int, int]:
-    try:
-        i, n = (int(x) for x in text.split("/"))
-    except ValueError:
-        fail(f"--cells '{text}' is not of the form I/N (for example 0/4)")
-    if not (n >= 1 and 0 <= i < n):
-        fail(f"--cells {text} is out of range; use I/N with 0 <= I < N")
-    return i, n
+from mdgs.cli import app, fail, parse_share, progress_bar
 
 
 @app.command("study")
@@ -45,7 +35,7 @@ def study_cmd(
         return
     if study_file is None or out is None:
         fail("give a study file and --out DIR (or --report DIR to redraw the tables and charts)")
-    share = _share(cells)
+    share = parse_share(cells, "--cells")
     try:
         study = load_study(study_file)
     except StudyError as e:
