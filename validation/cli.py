@@ -21,6 +21,7 @@ from rich.table import Table
 from rich.text import Text
 
 import mdgs.cli
+from mdgs.data.schema import DatasetError
 from validation import report as _report
 
 EXIT_HOLDS, EXIT_REFUTED, EXIT_ERROR = 0, 1, 2
@@ -218,8 +219,8 @@ def _run_data(path: str, check: list[str] | None, case: list[str] | None) -> lis
         raise UsageError(f"--data needs validation.data_checks, which cannot be imported ({e}).") from e
     try:
         rows = list(data_checks.check_dataset(path))
-    except (ValueError, OSError) as e:
-        raise UsageError(f"--data {path}: {e}") from e
+    except (ValueError, OSError, DatasetError) as e:  # DatasetError names the file and the fix
+        raise UsageError(str(e) if isinstance(e, DatasetError) else f"--data {path}: {e}") from e
     return [r for r in rows if (not check or r.get("claim_id") in check) and (not case or r.get("case") in case)]
 
 
