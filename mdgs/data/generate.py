@@ -234,8 +234,10 @@ def generate(
 
     with mujoco_messages() as stray:
         res = _generate(cfg, progress, warn)
-    for msg in stray:  # MuJoCo warnings outside loading and stepping (none expected)
-        warn(f"MuJoCo: {msg}")
+    known = set(_WORKER["loaded"].warnings) if "loaded" in _WORKER else set()
+    for msg in dict.fromkeys(stray):  # outside loading and stepping: the scene's check
+        if msg not in known:  # (resolve_scene compiles the model too)
+            warn(f"MuJoCo: {msg}")
     return dataclasses.replace(res, warnings=tuple(lines))
 
 

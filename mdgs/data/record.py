@@ -194,8 +194,8 @@ def _load_spec(mjcf: str, path: str | None, assets: dict[str, bytes] | None) -> 
     try:
         if path is not None:
             return mujoco.MjSpec.from_file(path)
-        if assets:
-            return mujoco.MjSpec.from_string(mjcf, assets=assets)
+        if assets:  # include files and asset files, by the name the MJCF reads them
+            return mujoco.MjSpec.from_string(mjcf, include=assets, assets=assets)
         return mujoco.MjSpec.from_string(mjcf)
     except Exception as e:
         raise SceneError(f"MuJoCo cannot parse the MJCF: {e}") from None
