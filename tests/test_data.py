@@ -259,3 +259,12 @@ def test_newton_tolerance_is_set_by_the_model_not_by_the_data(tiny_dir, tmp_path
     assert scale == pytest.approx(st["body_mass"][~st["body_static"]].sum() * np.linalg.norm(g))
     assert rows["newton"]["tolerance"] == pytest.approx(1e-9 * scale)
     assert rows["newton"]["verdict"] == "refuted" and rows["newton"]["residual"] >= 1e-5 * 0.999
+
+
+def test_a_dataset_without_moving_bodies_is_a_dataset_error(tiny_dir, tmp_path):
+    """Not an empty report that blames --check and --case, which were not given."""
+    p = _copy(tiny_dir / "train.h5", tmp_path)
+    with h5py.File(p, "r+") as f:
+        f["static/body_static"][...] = True
+    with pytest.raises(DatasetError, match="no moving body"):
+        check_dataset(p)

@@ -48,6 +48,7 @@ def check_dataset(path: str | Path) -> list[dict]:
     Raises :class:`mdgs.data.schema.DatasetError` if the file is not a usable dataset.
     """
     from mdgs.data.io import open_dataset
+    from mdgs.data.schema import DatasetError
 
     with open_dataset(path, verify=True) as ds:
         st, a = ds.static, ds.attrs
@@ -55,6 +56,10 @@ def check_dataset(path: str | Path) -> list[dict]:
         g = np.asarray(a["gravity"], float)
         mass = st["body_mass"]
         moving = ~st["body_static"] & (mass > 0)
+        if not moving.any():
+            raise DatasetError(
+                f"{path} has no moving body, so there is nothing to check; generate a scene with at least one joint"
+            )
         body_ids = st["body_id"]
         col = {int(b): i for i, b in enumerate(body_ids)}
         systems = [int(b) for b, free in zip(body_ids, st["body_free"], strict=True) if free]
