@@ -202,3 +202,69 @@ def test_unrecordable_model_is_one_clear_error():
     xml = '<mujoco><worldbody><body name="a"><freejoint/><geom size=".1"/></body><body name="b" pos="1 0 0"><freejoint/><geom size=".1"/></body></worldbody><equality><weld body1="a" body2="b"/></equality></mujoco>'
     with pytest.raises(SceneError, match="equality constraints"):
         instrument(xml)
+
+
+def test_nan_or_inf_in_a_dataset_is_reported(tiny_dir, tmp_path):
+    for bad in (np.nan, np.inf):
+        p = _copy(tiny_dir / "train.h5", tmp_path, f"bad{bad}.h5")
+        with h5py.File(p, "r+") as f:
+            f["frames/body_joint_force"][1, 7, 0, 2] = bad
+        with pytest.raises(DatasetError, match=r"body_joint_force holds NaN or Inf \(trajectory 1\)"):
+            check_dataset(p)
+
+
+@pytest.mark.parametrize("kind", ["empty", "foreign", "truncated", "nan"])
+def test_validate_data_on_an_unusable_file_is_one_sentence_and_exit_2(kind, tiny_dir, tmp_path, capsys):
+    from validation.cli import main
+
+    p = tmp_path / f"{kind}.h5"
+    if kind == "empty":
+        p.write_bytes(b"")
+    elif kind == "foreign":
+        with h5py.File(p, "w") as f:
+            f["data"] = np.arange(4.0)
+    else:
+        shutil.copy(tiny_dir / "train.h5", p)
+        if kind == "truncated":
+            p.write_bytes(p.read_bytes()[:5000])
+        else:
+            with h5py.File(p, "r+") as f:
+                f["frames/qvel"][0, 3, 0] = np.nan
+    for args in (["validate", "--data", str(p)], ["validate", "--data", str(p), "--json", "-"]):
+        assert main(args) == 2
+        err = capsys.readouterr().err.strip()
+        assert str(p) in err and "Traceback" not in err and len(err.splitlines()) == 1
+
+
+def test_newton_tolerance_is_set_by_the_model_not_by_the_data(tiny_dir, tmp_path):
+    """A missing load of 1e-5 N on the cube must be refuted even when another frame holds a
+    huge (balanced) force: the tolerance is 1e-9 x moving mass x |g|, from the static table."""
+    from validation.data_checks import force_scale
+
+    p = _copy(tiny_dir / "train.h5", tmp_path)
+    with open_dataset(p) as ds:
+        st, g = ds.static, np.asarray(ds.attrs["gravity"])
+    with h5py.File(p, "r+") as f:
+        jf = f["frames/body_joint_force"]
+        jf[0] = jf[0] + np.array([1e-5, 0, 0])  # a load the file lacks, on every body
+        acc = f["frames/body_acc"]
+        a = acc[1]
+        a[5, 0, 0] += 1e7  # a blown-up frame, balanced by an equally huge joint force
+        acc[1] = a
+        j1 = jf[1]
+        j1[5, 0, 0] += st["body_mass"][0] * 1e7
+        jf[1] = j1
+    rows = {r["claim_id"]: r for r in check_dataset(p)}
+    scale = force_scale(st, g)
+    assert scale == pytest.approx(st["body_mass"][~st["body_static"]].sum() * np.linalg.norm(g))
+    assert rows["newton"]["tolerance"] == pytest.approx(1e-9 * scale)
+    assert rows["newton"]["verdict"] == "refuted" and rows["newton"]["residual"] >= 1e-5 * 0.999
+
+
+def test_a_dataset_without_moving_bodies_is_a_dataset_error(tiny_dir, tmp_path):
+    """Not an empty report that blames --check and --case, which were not given."""
+    p = _copy(tiny_dir / "train.h5", tmp_path)
+    with h5py.File(p, "r+") as f:
+        f["static/body_static"][...] = True
+    with pytest.raises(DatasetError, match="no moving body"):
+        check_dataset(p)

@@ -1,7 +1,12 @@
 """Residuals of the Kane claims along ground-truth trajectories of a dataset file.
 
 Checks per dataset (``mdgs validate --data FILE``); tolerance ``1e-9 * S`` throughout, with
-``S`` the largest ``|m a| + m |g|`` of the file (nine digits of the force scale):
+``S = (sum of the moving bodies' masses) * max(|g|, 1 m/s^2)`` in N: nine digits of the
+model's weight (of its mass times 1 m/s^2 without gravity). ``S`` is set by the model
+(the file's static body table and gravity), never by the trajectories it judges: a
+blown-up simulation's huge forces must not widen its own tolerance. Round-off of the
+recorded sums stays near ``1e-16`` of the forces, so forces up to ``1e6`` times the weight
+still pass, while a missing load of a micronewton per kilogram does not.
 
 - ``newton`` (per body): the recorded frame loads ``m_b g + F_contact + F_actuator + F_joint``
   against ``m_b a_b`` with MuJoCo's recorded body acceleration (``body_acc``, frame mean).
@@ -24,9 +29,17 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["check_dataset"]
+__all__ = ["check_dataset", "force_scale"]
 
-_REL = 1e-9  # bookkeeping tolerance relative to the file's force scale
+_REL = 1e-9  # bookkeeping tolerance relative to the model's force scale (module docstring)
+_G_FLOOR = 1.0  # m/s^2: the acceleration that sets the force scale of a model without gravity
+
+
+def force_scale(static: dict, gravity: np.ndarray) -> float:
+    """``S`` of the module docstring, in N: the moving bodies' mass times ``max(|g|, 1 m/s^2)``."""
+    moving = ~np.asarray(static["body_static"], bool)
+    mass = float(np.asarray(static["body_mass"], float)[moving].sum())
+    return mass * max(float(np.linalg.norm(gravity)), _G_FLOOR)
 
 
 def check_dataset(path: str | Path) -> list[dict]:
@@ -35,6 +48,7 @@ def check_dataset(path: str | Path) -> list[dict]:
     Raises :class:`mdgs.data.schema.DatasetError` if the file is not a usable dataset.
     """
     from mdgs.data.io import open_dataset
+    from mdgs.data.schema import DatasetError
 
     with open_dataset(path, verify=True) as ds:
         st, a = ds.static, ds.attrs
@@ -42,6 +56,10 @@ def check_dataset(path: str | Path) -> list[dict]:
         g = np.asarray(a["gravity"], float)
         mass = st["body_mass"]
         moving = ~st["body_static"] & (mass > 0)
+        if not moving.any():
+            raise DatasetError(
+                f"{path} has no moving body, so there is nothing to check; generate a scene with at least one joint"
+            )
         body_ids = st["body_id"]
         col = {int(b): i for i, b in enumerate(body_ids)}
         systems = [int(b) for b, free in zip(body_ids, st["body_free"], strict=True) if free]
@@ -54,7 +72,7 @@ def check_dataset(path: str | Path) -> list[dict]:
         eq_res = {s: 0.0 for s in systems}
         eq_bk = {s: 0.0 for s in systems}
         eq_D = {s: 0.0 for s in systems}
-        scale = 0.0
+        data_scale = 0.0  # reported only: the tolerance must not depend on it
         overflow = 0
         for t in range(ds.n_traj):
             v = ds.frames("body_linvel", t)  # [F, B, 3]
@@ -67,8 +85,8 @@ def check_dataset(path: str | Path) -> list[dict]:
             )
             ma_fd = mass[None, :, None] * np.diff(v, axis=0) / delta
             ma = mass[None, :, None] * acc
-            scale = max(
-                scale,
+            data_scale = max(
+                data_scale,
                 float(np.abs(ma).max(initial=0.0) + (mass * np.linalg.norm(g)).max(initial=0.0)),
             )
             newton_res = np.maximum(newton_res, np.abs(loads[:-1] - ma_fd).max(axis=(0, 2)))
@@ -95,14 +113,16 @@ def check_dataset(path: str | Path) -> list[dict]:
 
         case = str(a["scene"])
         names = st["body_names"]
+        scale = force_scale(st, g)
         floor = _REL * scale
         assumptions = {
             "integrator": f"{a['integrator']} (semi-implicit, exact in generalized coordinates)",
             "dt": float(a["dt"]),
             "frame_dt": delta,
             "loads": "frame means over the substeps (impulse / frame_dt)",
-            "tolerance": "integrator discretization D (from MuJoCo's recorded accelerations) + 1e-9 x force scale",
+            "tolerance": "1e-9 x the model's force scale S = moving mass x max(|g|, 1 m/s^2); set by the model, not by the data",
             "force_scale_N": scale,
+            "largest_force_in_data_N": data_scale,
         }
         out = []
         mv = np.flatnonzero(moving)

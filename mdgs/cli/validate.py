@@ -19,6 +19,7 @@ from rich.table import Table
 from rich.text import Text
 
 from mdgs.cli import EXIT_ERROR, EXIT_HOLDS, app, main
+from mdgs.data.schema import DatasetError
 from validation import report as _report
 from validation.report import counterexample_line, format_number
 
@@ -128,8 +129,8 @@ def _run_data(path: str, check: list[str] | None, case: list[str] | None) -> lis
         raise UsageError(f"--data needs validation.data_checks, which cannot be imported ({e}).") from e
     try:
         rows = list(data_checks.check_dataset(path))
-    except (ValueError, OSError) as e:
-        raise UsageError(f"--data {path}: {e}") from e
+    except (ValueError, OSError, DatasetError) as e:  # DatasetError names the file and the fix
+        raise UsageError(str(e) if isinstance(e, DatasetError) else f"--data {path}: {e}") from e
     return [r for r in rows if (not check or r.get("claim_id") in check) and (not case or r.get("case") in case)]
 
 

@@ -276,3 +276,79 @@ def node_kinematics(xpos, xquat, xipos, cvel, sub, root, node_body, node_c, body
             node_vel[x, n, 0] = body_v[x, b, 0] + (w1 * a2 - w2 * a1)
             node_vel[x, n, 1] = body_v[x, b, 1] + (w2 * a0 - w0 * a2)
             node_vel[x, n, 2] = body_v[x, b, 2] + (w0 * a1 - w1 * a0)
+
+
+@njit(**_JIT)
+def implicit_damping(
+    qvel, qvel0, qacc, cdof, ximat, xipos, sub, root, parent, dof_body, mass, inertia, h, k,
+    acc, joint, fint,
+):  # pragma: no cover
+    """Move frame-mean accelerations and joint loads from MuJoCo's ``qacc`` to the integrated one.
+
+    With implicit joint damping (``eulerdamp``) the Euler step advances
+    ``qvel[s+1] = qvel[s] + h qacc'[s]`` with ``(M + h B) qacc' = M qacc``, while MuJoCo's
+    wrenches and sensors hold ``qacc``. The difference ``dq = qacc' - qacc`` (from the
+    recorded velocities: ``qvel [X, k, nv]`` after each step, ``qvel0 [X, nv]`` before the
+    frame) changes each body's spatial acceleration about the tree's reference point by
+    ``dc[b] = dc[parent] + sum over b's dofs of cdof dq`` (Featherstone 2008, Eq. 5.14,
+    the velocity terms being unchanged), its centre-of-mass acceleration by
+    ``da = dc_lin + dc_ang x (com - ref)`` and, by Newton-Euler, the load its joints pass
+    to it (its contacts and actuators being unchanged) by ``[I dc_ang; m da]`` about the
+    centre of mass (``I = R diag(inertia) R^T``, ``R = ximat``). Updates ``acc``,
+    ``joint`` and ``fint`` (the parent's force: the sum over the subtree) in place, adding
+    the frame means.
+    """
+    X, nv, nb = qvel.shape[0], qvel.shape[2], xipos.shape[2]
+    dc = np.empty((nb, 6))
+    fsub = np.empty((nb, 3))
+    for x in range(X):
+        for s in range(k):
+            for b in range(nb):
+                for i in range(6):
+                    dc[b, i] = 0.0
+            for j in range(nv):
+                before = qvel0[x, j] if s == 0 else qvel[x, s - 1, j]
+                dq = (qvel[x, s, j] - before) / h - qacc[x, s, j]
+                b = dof_body[j]
+                for i in range(6):
+                    dc[b, i] += cdof[x, s, j, i] * dq
+            for b in range(1, nb):  # parents come first in MuJoCo's body order
+                p = parent[b]
+                for i in range(6):
+                    dc[b, i] += dc[p, i]
+            for b in range(nb):
+                for i in range(3):
+                    fsub[b, i] = 0.0
+            for b in range(nb - 1, 0, -1):
+                rt = root[b]
+                rx = xipos[x, s, b, 0] - sub[x, s, rt, 0]
+                ry = xipos[x, s, b, 1] - sub[x, s, rt, 1]
+                rz = xipos[x, s, b, 2] - sub[x, s, rt, 2]
+                wx, wy, wz = dc[b, 0], dc[b, 1], dc[b, 2]
+                da0 = dc[b, 3] + wy * rz - wz * ry
+                da1 = dc[b, 4] + wz * rx - wx * rz
+                da2 = dc[b, 5] + wx * ry - wy * rx
+                m = mass[b]
+                acc[x, b - 1, 0] += da0 / k
+                acc[x, b - 1, 1] += da1 / k
+                acc[x, b - 1, 2] += da2 / k
+                joint[x, b - 1, 3] += m * da0 / k
+                joint[x, b - 1, 4] += m * da1 / k
+                joint[x, b - 1, 5] += m * da2 / k
+                # I dw in world axes: R diag(inertia) R^T dw
+                for i in range(3):
+                    t = 0.0
+                    for a in range(3):
+                        ra = ximat[x, s, b, 3 * i + a]
+                        t += ra * inertia[b, a] * (
+                            ximat[x, s, b, a] * wx + ximat[x, s, b, 3 + a] * wy
+                            + ximat[x, s, b, 6 + a] * wz
+                        )
+                    joint[x, b - 1, i] += t / k
+                fsub[b, 0] += m * da0
+                fsub[b, 1] += m * da1
+                fsub[b, 2] += m * da2
+                for i in range(3):
+                    fint[x, b - 1, i] += fsub[b, i] / k
+                    if parent[b] > 0:
+                        fsub[parent[b], i] += fsub[b, i]

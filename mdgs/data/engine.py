@@ -12,14 +12,17 @@ trajectory, so batches, workers and shards never change its bits.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
-from dataclasses import dataclass
+import warnings
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import mujoco
 import mujoco.batch
 import numpy as np
 
-from mdgs.data.record import KINEMATICS, FrameReducer, Instrumented, instrument
+from mdgs.data.record import KINEMATICS, FrameReducer, Instrumented, SceneError, instrument
 from mdgs.partition import PartitionParams
 from mdgs.scenes import SceneSpec
 
@@ -31,6 +34,8 @@ __all__ = [
     "static_arrays",
     "scene_attrs",
     "rng_for",
+    "mujoco_messages",
+    "self_contained_mjcf",
 ]
 
 SPLIT_CODE = {"train": 0, "valid": 1, "test": 2}
@@ -51,15 +56,112 @@ class LoadedScene:
 
     spec: SceneSpec
     mjcf: str
+    """Self-contained MJCF: includes inlined, file assets renamed to keys of ``assets``."""
     inst: Instrumented
     mjcf_path: str = ""
+    assets: dict[str, bytes] = field(default_factory=dict)
+    """Bytes of the files the MJCF reads (meshes, textures, ...), by the name it uses."""
+    warnings: tuple[str, ...] = ()
+    """MuJoCo's warnings while loading and compiling the model (e.g. deprecated attributes)."""
+
+
+@contextmanager
+def mujoco_messages() -> Iterator[list[str]]:
+    """Collect MuJoCo's warnings (``mju_user_warning``) in the yielded list while inside.
+
+    Without a handler MuJoCo prints them and appends them to ``MUJOCO_LOG.TXT`` in the
+    current folder; here they go to the caller, who prints them and stores them in the
+    dataset (``mujoco_warnings``). The previous handler is restored on exit.
+    """
+    got: list[str] = []
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(lambda msg: got.append(str(msg).strip()))
+    try:
+        yield got
+    finally:
+        mujoco.set_mju_user_warning(previous)
+
+
+def self_contained_mjcf(path: str | Path) -> tuple[str, dict[str, bytes]]:
+    """The MJCF file ``path`` as its text and every file it reads, by the name it reads it.
+
+    The text is the file's own, unchanged; the dict holds the ``<include>`` files
+    (recursively) and the assets' files (meshes, skins, height fields, textures) under
+    the names MuJoCo looks them up by (the attribute, prefixed with ``meshdir`` or
+    ``texturedir``), so ``mujoco.MjModel.from_xml_string(text, assets)`` builds the same
+    model with no base directory, on any machine (:func:`mdgs.data.io.model_from_dataset`).
+    Generation compiles the model that way too, so a file the dict lacks is an error
+    there, never on another machine.
+    """
+    import xml.etree.ElementTree as ET
+
+    path = Path(path).resolve()
+    root = path.parent
+    assets: dict[str, bytes] = {}
+
+    def read(name: str, f: Path) -> None:
+        if name in assets:
+            return
+        try:
+            assets[name] = f.read_bytes()
+        except OSError as e:
+            raise SceneError(
+                f"{path} reads {f}, which cannot be read ({e.strerror or e}); put the file there or fix the path"
+            ) from None
+
+    def includes(f: Path) -> None:
+        try:
+            tree = ET.fromstring(f.read_text())
+        except (OSError, ET.ParseError) as e:
+            raise SceneError(f"{f} is not a readable MJCF file ({e}); fix the XML") from None
+        for inc in tree.iter("include"):
+            name = inc.get("file", "")
+            g = Path(name) if Path(name).is_absolute() else root / name
+            if name and name not in assets:
+                read(name, g)
+                includes(g)
+
+    includes(path)
+    try:
+        spec = mujoco.MjSpec.from_file(str(path))
+    except Exception as e:
+        raise SceneError(f"MuJoCo cannot parse {path}: {str(e).strip().splitlines()[0]}") from None
+
+    comp = spec.compiler
+    files = [(m.file, comp.meshdir) for m in spec.meshes]
+    files += [(k.file, comp.meshdir) for k in spec.skins]
+    files += [(h.file, comp.meshdir) for h in spec.hfields]
+    for t in spec.textures:
+        files += [(t.file, comp.texturedir)] + [(c, comp.texturedir) for c in t.cubefiles]
+    for name, folder in files:
+        if not name:
+            continue
+        key = name
+        if not Path(name).is_absolute() and folder:
+            key = (folder if folder.endswith("/") else folder + "/") + name
+        read(key, Path(key) if Path(key).is_absolute() else root / key)
+    return path.read_text(), assets
 
 
 def load_scene(spec: SceneSpec, partition: PartitionParams = PartitionParams()) -> LoadedScene:
-    mjcf = spec.mjcf()
+    """Instrument ``spec``'s model; a user's MJCF file is first made self-contained.
+
+    MuJoCo's warnings are collected in :attr:`LoadedScene.warnings` (never written to
+    ``MUJOCO_LOG.TXT``).
+    """
     path = getattr(spec.builder, "path", None)
-    inst = instrument(mjcf, path=path, partition=partition)
-    return LoadedScene(spec=spec, mjcf=mjcf, inst=inst, mjcf_path=str(path or ""))
+    with mujoco_messages() as got, warnings.catch_warnings(record=True) as py:
+        warnings.simplefilter("always")
+        assets: dict[str, bytes] = {}
+        if path is not None:
+            mjcf, assets = self_contained_mjcf(path)
+        else:
+            mjcf = spec.mjcf()
+        inst = instrument(mjcf, assets=assets, partition=partition)
+    msgs = tuple(dict.fromkeys(got + [str(w.message).strip() for w in py]))
+    return LoadedScene(
+        spec=spec, mjcf=mjcf, inst=inst, mjcf_path=str(path or ""), assets=assets, warnings=msgs
+    )
 
 
 def _state_slices(model: mujoco.MjModel) -> dict[str, slice]:
@@ -89,6 +191,43 @@ def _reducer(inst: Instrumented, substeps: int) -> FrameReducer:
             _REDUCERS.clear()
         hit = _REDUCERS[key] = (inst, FrameReducer(inst, substeps))
     return hit[1]
+
+
+_W = mujoco.mjtWarning
+_WARNING_FIX = {
+    int(_W.mjWARN_INERTIA): "give every moving body positive mass and inertia",
+    int(_W.mjWARN_CONTACTFULL): 'enlarge MuJoCo\'s arena with <size memory="..."/> in the MJCF',
+    int(_W.mjWARN_CNSTRFULL): 'enlarge MuJoCo\'s arena with <size memory="..."/> in the MJCF',
+    int(_W.mjWARN_BADCTRL): "keep the controls finite (actuator ctrlrange)",
+}
+
+
+def _refuse_warnings(
+    batch: mujoco.batch.Batch, scene: LoadedScene, split: str, ids: Sequence[int], f: int
+) -> None:
+    """Raise :class:`SceneError` if MuJoCo warned in any simulation of the last call.
+
+    A warning means MuJoCo reset the state (NaN, Inf or huge values), dropped contacts or
+    constraints, or clamped inputs; :meth:`mujoco.batch.Batch.rollout` then stops that
+    simulation and repeats its last records. Such data is never written.
+    """
+    counts = batch.warning[:, :, 1]
+    if not counts.any():
+        return
+    r, w = (int(i) for i in np.argwhere(counts)[0])
+    text = mujoco.mju_warningText(w, int(batch.warning[r, w, 0])).strip().rstrip(".")
+    m = scene.inst.model
+    integ = [n for n in scene.inst.notes if n.startswith("integrator")]
+    fix = _WARNING_FIX.get(
+        w,
+        f"the model is unstable as simulated (Euler, timestep {m.opt.timestep:g} s"
+        + (f"; {integ[0]}" if integ else "")
+        + "): lower <option timestep> or add joint damping or armature",
+    )
+    raise SceneError(
+        f"MuJoCo warned while simulating {split} trajectory {ids[r]} in frame {f} ({text}); "
+        f"no data was written, since its state was reset or its forces cut short: {fix}"
+    )
 
 
 def simulate(
@@ -155,6 +294,19 @@ def simulate(
     bufs = {False: buffers(data, reduce.fields)}
     if lean is not None:
         bufs[True] = buffers(lean_d, reduce.lean_fields)
+    def _checked(b: mujoco.batch.Batch, f: int, k: int, **kw) -> dict[str, np.ndarray]:
+        """``b.rollout(k, **kw)``, refusing to go on once MuJoCo raised or warned."""
+        try:
+            out = b.rollout(k, **kw)
+        except mujoco.batch.SimulationError as e:
+            r = int(e.ids[0])
+            raise SceneError(
+                f"MuJoCo failed while simulating {split} trajectory {ids[r]} in frame {f}: "
+                f"{' '.join(b.error(r).split())}; no data was written"
+            ) from None
+        _refuse_warnings(b, scene, split, ids, f)
+        return out
+
     use_lean = False  # the first frame tells whether contacts are rare
     batch = full
     b0 = 0
@@ -167,21 +319,22 @@ def simulate(
         ctrls[:, f] = u
         control = np.repeat(u[:, None, :], k, axis=1) if m.nu else None
         saved = batch.state.copy() if use_lean else None
-        rec = batch.rollout(
-            k, control=control, record=record[use_lean], out={key: v[j] for key, v in buf.items()}
-        )
+        rec = _checked(
+            batch, f, k, control=control, record=record[use_lean],
+            out={key: v[j] for key, v in buf.items()},
+        )  # fmt: skip
         want = use_lean
         if lean is not None:
             hit = np.flatnonzero(rec["ncon"].any(1))
             if use_lean and len(hit):  # contacts: the same steps again, with the sensors
                 full.state[hit] = saved[hit]
                 reruns.append(
-                    full.rollout(
-                        k,
+                    _checked(
+                        full, f, k,
                         control=None if control is None else control[hit],
                         record=reduce.contact_fields,
                         ids=hit.astype(np.int32),
-                    )
+                    )  # fmt: skip
                 )
                 if not np.array_equal(full.state[hit], batch.state[hit]):
                     raise AssertionError("internal: the lean model's dynamics differ")
@@ -194,15 +347,18 @@ def simulate(
         # reduce the block [b0, f]: per-frame loads, frame-start fields
         nf = j + 1
         rec = {key: v[:nf].reshape((nf * R,) + v.shape[2:]) for key, v in buf.items()}
+        qvel0 = None
+        if reduce.implicit:  # rows of rec are frame-major: (frame j, trajectory r) -> j R + r
+            qvel0 = np.swapaxes(frames[:, b0 : f + 1, sl["qvel"]], 0, 1).reshape(nf * R, -1)
         if use_lean:
             rows = np.concatenate(rerun_rows) if reruns else np.zeros(0, int)
             contact = {
                 key: np.concatenate([c[key] for c in reruns]) if reruns else None
                 for key in reduce.contact_fields
             }
-            lo = reduce.loads(rec, contact, rows)
+            lo = reduce.loads(rec, contact, rows, qvel0=qvel0)
         else:
-            lo = reduce.loads(rec)
+            lo = reduce.loads(rec, qvel0=qvel0)
         for key, v in lo.items():
             if v is None:
                 continue
@@ -303,4 +459,5 @@ def scene_attrs(scene: LoadedScene) -> dict:
         "node_counts": json.dumps(scene.inst.partition.summary()["per_body"]),
         "scene_params": json.dumps(spec.params(), sort_keys=True, default=list),
         "notes": json.dumps(list(scene.inst.notes)),
+        "mujoco_warnings": json.dumps(list(scene.warnings)) if scene.warnings else "",
     }

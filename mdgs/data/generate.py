@@ -10,14 +10,25 @@ one). When every part of every split exists, the run that notices merges them, i
 order, into ``OUT/{split}.h5`` (atomically; chunks are copied verbatim) and removes the
 parts. ``OUT/generate.json`` holds the resolved configuration; its hash is stamped on
 every file, and a run with different settings refuses to mix its output with it.
+
+A run first deletes the temporaries that killed runs left behind (``.NAME.tmpPID`` of
+processes that no longer exist). MuJoCo's warnings never land in ``MUJOCO_LOG.TXT``:
+those of loading the model are passed to ``on_warning`` (stderr by default) and stored
+in the files' ``mujoco_warnings``; a warning while simulating (an unstable model, a full
+constraint arena) stops the run before anything is written
+(:class:`mdgs.data.record.SceneError`), as does an error of MuJoCo's. Contacts beyond the
+recorded slots are reported the same way and counted in ``contact_overflow``.
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
+import dataclasses
+import hashlib
 import json
 import multiprocessing as mp
 import shutil
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -25,9 +36,24 @@ from pathlib import Path
 
 import h5py
 
-from mdgs.data.engine import LoadedScene, load_scene, scene_attrs, simulate, static_arrays
-from mdgs.data.io import atomic_path, merge_files, open_dataset, sha256_text, write_file
+from mdgs.data.engine import (
+    LoadedScene,
+    load_scene,
+    mujoco_messages,
+    scene_attrs,
+    simulate,
+    static_arrays,
+)
+from mdgs.data.io import (
+    atomic_path,
+    merge_files,
+    open_dataset,
+    remove_stale_temporaries,
+    sha256_text,
+    write_file,
+)
 from mdgs.data.presets import PRESETS, split_counts
+from mdgs.data.record import CONTACT_SLOTS
 from mdgs.data.schema import SCHEMA_VERSION, DatasetError
 from mdgs.partition import PartitionParams
 from mdgs.scenes import SceneSpec, get_scene, user_scene
@@ -83,6 +109,9 @@ class GenerateResult:
     seconds: float
     merged: bool
     n_nodes: int
+    warnings: tuple[str, ...] = ()
+    """Warning lines of this run (MuJoCo's, changes made to the model, contact overflow),
+    each also passed to ``on_warning``."""
 
 
 def resolve_scene(cfg: GenerateConfig) -> SceneSpec:
@@ -105,7 +134,7 @@ def _content(cfg: GenerateConfig, loaded: LoadedScene) -> dict:
     if cfg.n_frames is not None and cfg.n_frames < 2:
         raise ValueError(f"--frames {cfg.n_frames} must be at least 2")
     counts = split_counts(cfg.n_traj, splits) if cfg.n_traj is not None else preset.counts(splits)
-    return {
+    content = {
         "schema_version": SCHEMA_VERSION,
         "scene": spec.name,
         "mjcf_sha256": sha256_text(loaded.mjcf),
@@ -117,6 +146,11 @@ def _content(cfg: GenerateConfig, loaded: LoadedScene) -> dict:
         "batch": int(cfg.batch or preset.batch),
         "mujoco": __import__("mujoco").__version__,
     }
+    if loaded.assets:  # the files the MJCF reads determine the model too
+        content["assets_sha256"] = sha256_text(
+            json.dumps({k: hashlib.sha256(v).hexdigest() for k, v in loaded.assets.items()})
+        )
+    return content
 
 
 def plan(counts: dict[str, int], batch: int) -> list[tuple[str, int, int]]:
@@ -164,7 +198,9 @@ def _run_job(job: tuple[str, int, int], base_attrs: dict) -> tuple[str, int, int
     split, start, stop = job
     cfg, loaded = _WORKER["cfg"], _WORKER["loaded"]
     n_frames = int(base_attrs["n_frames"])
-    frames = simulate(loaded, split, range(start, stop), cfg.seed, n_frames)
+    with mujoco_messages():  # unstable runs raise SceneError from the warning counters
+        frames = simulate(loaded, split, range(start, stop), cfg.seed, n_frames)
+    overflow = int(frames["contact_overflow"].sum())
     attrs = {
         **_WORKER["attrs"],
         **base_attrs,
@@ -172,20 +208,49 @@ def _run_job(job: tuple[str, int, int], base_attrs: dict) -> tuple[str, int, int
         "n_traj": stop - start,
         "traj_start": start,
         "complete": False,
+        "contact_overflow": overflow,
     }
     path = _part_path(Path(cfg.out), split, start, stop)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_file(path, attrs, loaded.mjcf, _WORKER["static"], frames)
-    return split, start, stop, (stop - start) * n_frames * loaded.spec.substeps
+    write_file(path, attrs, loaded.mjcf, _WORKER["static"], frames, loaded.assets)
+    return split, start, stop, (stop - start) * n_frames * loaded.spec.substeps, overflow
+
+
+def _stderr_line(line: str) -> None:
+    print(f"warning: {line}", file=sys.stderr)
 
 
 def generate(
-    cfg: GenerateConfig, progress: Callable[[int, int], None] | None = None
+    cfg: GenerateConfig,
+    progress: Callable[[int, int], None] | None = None,
+    on_warning: Callable[[str], None] | None = _stderr_line,
 ) -> GenerateResult:
     """Generate (or resume, or finish the merge of) the dataset described by ``cfg``.
 
-    ``progress(done, total)`` is called with trajectory counts of this shard.
+    ``progress(done, total)`` is called with trajectory counts of this shard;
+    ``on_warning(line)`` with each warning line (default: ``warning: LINE`` on stderr;
+    they are also in :attr:`GenerateResult.warnings`).
+
+    Raises :class:`mdgs.data.record.SceneError` for a model that cannot be recorded or
+    that MuJoCo warns about while simulating (nothing of it is written).
     """
+    lines: list[str] = []
+
+    def warn(line: str) -> None:
+        lines.append(line)
+        if on_warning is not None:
+            on_warning(line)
+
+    with mujoco_messages() as stray:
+        res = _generate(cfg, progress, warn)
+    known = set(_WORKER["loaded"].warnings) if "loaded" in _WORKER else set()
+    for msg in dict.fromkeys(stray):  # outside loading and stepping: the scene's check
+        if msg not in known:  # (resolve_scene compiles the model too)
+            warn(f"MuJoCo: {msg}")
+    return dataclasses.replace(res, warnings=tuple(lines))
+
+
+def _generate(cfg: GenerateConfig, progress, warn: Callable[[str], None]) -> GenerateResult:
     t0 = time.perf_counter()
     if cfg.preset not in PRESETS:
         raise ValueError(f"unknown preset '{cfg.preset}'; choose one of {', '.join(PRESETS)}")
@@ -195,10 +260,15 @@ def generate(
     spec = resolve_scene(cfg)
     _worker_init(cfg)  # also validates the scene in this process
     loaded: LoadedScene = _WORKER["loaded"]
+    for msg in loaded.warnings:
+        warn(f"MuJoCo, loading {spec.name}: {msg}")
+    for note in loaded.inst.notes:
+        warn(f"{spec.name}: {note}")
     content = _content(cfg, loaded)
     sha = sha256_text(json.dumps(content, sort_keys=True))
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
+    remove_stale_temporaries(out)
     _write_config(out, cfg, content, sha)
     base_attrs = {
         "seed": int(cfg.seed),
@@ -221,11 +291,12 @@ def generate(
         progress(done, total)
     steps = 0
     ran = 0
+    overflow = 0
     if todo:
         if cfg.workers <= 1:
             for job in todo:
-                _, a, b, st = _run_job(job, base_attrs)
-                steps, ran, done = steps + st, ran + b - a, done + b - a
+                _, a, b, st, ov = _run_job(job, base_attrs)
+                steps, ran, done, overflow = steps + st, ran + b - a, done + b - a, overflow + ov
                 if progress:
                     progress(done, total)
         else:
@@ -239,10 +310,17 @@ def generate(
             ) as pool:
                 futs = [pool.submit(_run_job, job, base_attrs) for job in todo]
                 for fut in cf.as_completed(futs):
-                    _, a, b, st = fut.result()
+                    _, a, b, st, ov = fut.result()
                     steps, ran, done = steps + st, ran + b - a, done + b - a
+                    overflow += ov
                     if progress:
                         progress(done, total)
+    if overflow:
+        warn(
+            f"{spec.name}: {overflow} body-substeps had more than {CONTACT_SLOTS} contacts; the "
+            "rest of such a body's contact force is put on one element (counted per frame in "
+            "/frames/contact_overflow, in total in the contact_overflow attribute)"
+        )
     files, merged = _merge_if_ready(out, counts, jobs, sha)
     return GenerateResult(
         out,

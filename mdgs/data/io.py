@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -20,6 +21,7 @@ import numpy as np
 
 from mdgs.data.schema import (
     FRAME_ARRAYS,
+    OPTIONAL_ATTRS,
     ROOT_ATTRS,
     SCHEMA_VERSION,
     STATIC_ARRAYS,
@@ -27,7 +29,16 @@ from mdgs.data.schema import (
     DatasetError,
 )
 
-__all__ = ["write_file", "merge_files", "open_dataset", "Dataset", "atomic_path", "sha256_text"]
+__all__ = [
+    "write_file",
+    "merge_files",
+    "open_dataset",
+    "Dataset",
+    "atomic_path",
+    "sha256_text",
+    "model_from_dataset",
+    "remove_stale_temporaries",
+]
 
 # Sparse arrays (mostly zeros) are compressed with LZF (fast, built into h5py; without
 # the shuffle filter, which makes LZF both slower and larger on them); dense kinematics,
@@ -63,6 +74,39 @@ def atomic_path(path: Path) -> Iterator[Path]:
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+_TMP = re.compile(r"^\..+\.tmp(\d+)$")
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists on this machine."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def remove_stale_temporaries(folder: Path) -> list[Path]:
+    """Delete the temporaries of :func:`atomic_path` under ``folder`` whose writer is dead.
+
+    A killed run leaves ``.NAME.tmpPID`` behind (its rename never happened); a rerun
+    removes those of processes that no longer exist and keeps those of live ones (another
+    worker or shard may be writing). Returns the removed paths.
+    """
+    gone = []
+    folder = Path(folder)
+    if not folder.is_dir():
+        return gone
+    for f in folder.rglob(".*.tmp*"):
+        m = _TMP.match(f.name)
+        if m and f.is_file() and int(m.group(1)) != os.getpid() and not _alive(int(m.group(1))):
+            f.unlink(missing_ok=True)
+            gone.append(f)
+    return gone
 
 
 def _dataset_kwargs(name: str, shape: tuple[int, ...]) -> dict:
@@ -102,11 +146,21 @@ def _set_attrs(f: h5py.File, attrs: dict) -> None:
     for key in ROOT_ATTRS:
         if key in attrs:
             f.attrs[key] = attrs[key]
+    for key in OPTIONAL_ATTRS:  # written only when there is something to say
+        if key in attrs and attrs[key] not in (None, 0, "", "[]"):
+            f.attrs[key] = attrs[key]
 
 
-def _write_static(f: h5py.File, mjcf: str, static: dict) -> None:
+def _write_static(f: h5py.File, mjcf: str, static: dict, assets: dict | None = None) -> None:
     g = f.create_group("static")
     g.create_dataset("mjcf", data=mjcf, dtype=h5py.string_dtype(), track_times=False)
+    if assets:  # files the MJCF reads, by the name it reads them (only when it reads any)
+        a = g.create_group("assets", track_order=True)
+        for i, (name, data) in enumerate(assets.items()):
+            d = a.create_dataset(
+                f"{i:05d}", data=np.frombuffer(data, np.uint8), fletcher32=True, track_times=False
+            )
+            d.attrs["path"] = name
     for spec in STATIC_ARRAYS:
         g.create_dataset(
             spec.name,
@@ -120,11 +174,13 @@ def _write_static(f: h5py.File, mjcf: str, static: dict) -> None:
         )
 
 
-def write_file(path: Path, attrs: dict, mjcf: str, static: dict, frames: dict) -> None:
-    """Write one dataset (or part) file atomically."""
+def write_file(
+    path: Path, attrs: dict, mjcf: str, static: dict, frames: dict, assets: dict | None = None
+) -> None:
+    """Write one dataset (or part) file atomically (``assets``: files the MJCF reads)."""
     with atomic_path(path) as tmp, h5py.File(tmp, "w", libver=_LIBVER) as f:
         _set_attrs(f, {**attrs, "schema_version": SCHEMA_VERSION, "mjcf_sha256": sha256_text(mjcf)})
-        _write_static(f, mjcf, static)
+        _write_static(f, mjcf, static, assets)
         g = f.create_group("frames")
         for spec in FRAME_ARRAYS:
             a = np.ascontiguousarray(frames[spec.name], dtype=spec.dtype)
@@ -142,6 +198,7 @@ def merge_files(parts: Sequence[Path], path: Path, attrs: dict) -> None:
         first = srcs[0]
         total = sum(int(s.attrs["n_traj"]) for s in srcs)
         with atomic_path(path) as tmp, h5py.File(tmp, "w", libver=_LIBVER) as f:
+            overflow = sum(int(s.attrs.get("contact_overflow", 0)) for s in srcs)
             _set_attrs(
                 f,
                 {
@@ -149,6 +206,7 @@ def merge_files(parts: Sequence[Path], path: Path, attrs: dict) -> None:
                     **attrs,
                     "n_traj": total,
                     "traj_start": 0,
+                    "contact_overflow": overflow,
                 },
             )
             mjcf = (
@@ -159,11 +217,12 @@ def merge_files(parts: Sequence[Path], path: Path, attrs: dict) -> None:
             _write_static(
                 f,
                 mjcf,
-                {k: first["static"][k][()] for k in first["static"] if k != "mjcf"}
+                {k: first["static"][k][()] for k in first["static"] if k not in ("mjcf", "assets")}
                 | {
                     n: [s.decode() if isinstance(s, bytes) else s for s in first["static"][n][()]]
                     for n in STRING_LISTS
                 },
+                _read_assets(first),
             )
             g = f.create_group("frames")
             for spec in FRAME_ARRAYS:
@@ -192,6 +251,13 @@ def merge_files(parts: Sequence[Path], path: Path, attrs: dict) -> None:
             s.close()
 
 
+def _read_assets(f: h5py.File) -> dict[str, bytes]:
+    g = f["static"].get("assets")
+    if g is None:
+        return {}
+    return {str(d.attrs["path"]): d[()].tobytes() for d in (g[k] for k in sorted(g))}
+
+
 class Dataset:
     """An opened, checked dataset file. Use as a context manager or call :meth:`close`."""
 
@@ -203,8 +269,10 @@ class Dataset:
         raw = st["mjcf"][()]
         self.mjcf = raw.decode() if isinstance(raw, bytes) else str(raw)
         self.static = {}
+        self.assets = _read_assets(f)
+        """Files the MJCF reads (includes, meshes, textures), by the name it reads them."""
         for k in st:
-            if k == "mjcf":
+            if k in ("mjcf", "assets"):
                 continue
             v = st[k][()]
             if k in STRING_LISTS:
@@ -264,6 +332,12 @@ def open_dataset(
         raise DatasetError(
             f"{path} does not exist; generate it with `mdgs generate SCENE --out {path.parent}`"
         )
+    if path.is_dir():
+        raise DatasetError(
+            f"{path} is a folder, not a dataset file; pass one of its split files, e.g. {path / 'train.h5'}"
+        )
+    if path.stat().st_size == 0:
+        raise DatasetError(f"{path} is empty (0 bytes), not a dataset; {_REGEN}")
     try:
         f = h5py.File(path, "r")
     except OSError as e:
@@ -341,11 +415,41 @@ def _check(path: Path, f: h5py.File, verify: bool, allow_incomplete: bool) -> No
             raise DatasetError(
                 f"{path}: element masses of body {int(b)} do not sum to its mass; {_REGEN}"
             )
+    for s in STATIC_ARRAYS:
+        if s.dtype == "float64" and not np.isfinite(st[s.name][()]).all():
+            raise DatasetError(f"{path}: /static/{s.name} holds NaN or Inf; {_REGEN}")
     if verify:
         for s in FRAME_ARRAYS:
             d = f["frames"][s.name]
             for i in range(d.shape[0]):
-                d[i]
+                row = d[i]
+                if row.dtype.kind == "f" and not np.isfinite(row).all():
+                    raise DatasetError(
+                        f"{path}: /frames/{s.name} holds NaN or Inf (trajectory {i}), so the "
+                        f"simulation that wrote it was unstable or the file was edited; {_REGEN} "
+                        "(this version refuses to write unstable simulations)"
+                    )
+
+
+def model_from_dataset(ds: Dataset | str | os.PathLike):
+    """The dataset's MuJoCo model (``mujoco.MjModel``), rebuilt from the file alone.
+
+    Compiles ``/static/mjcf`` with ``/static/assets`` (its includes, meshes and textures),
+    so it needs neither the original folder nor its files: the model as the user wrote
+    it, without the recorder's sensors. ``ds``: an open :class:`Dataset` or a path.
+    """
+    import mujoco
+
+    if not isinstance(ds, Dataset):
+        with open_dataset(ds) as opened:
+            return model_from_dataset(opened)
+    try:
+        return mujoco.MjModel.from_xml_string(ds.mjcf, ds.assets or None)
+    except Exception as e:
+        raise DatasetError(
+            f"{ds.path}: its MJCF does not compile with this MuJoCo {mujoco.__version__} "
+            f"(written by {ds.attrs.get('mujoco_version', '?')}: {_short(e)}); regenerate it with this version"
+        ) from None
 
 
 def read_json_attr(ds: Dataset, key: str):

@@ -6,8 +6,10 @@ per-body wrenches, computed by ``mj_rnePostConstraint`` (triggered by one
 ``framelinacc`` sensor per body, which also gives MuJoCo's centre-of-mass acceleration):
 
 - ``cfrc_int[b]``: the wrench the parent exerts on body ``b`` through its joints;
-- ``cfrc_ext[b]``: the external wrench on ``b`` (contacts only: applied forces,
-  equality constraints and fluid forces are refused, see :func:`instrument`);
+- ``cfrc_ext[b]``: the external wrench on ``b`` (contacts only: MuJoCo also puts equality
+  constraint and spatial tendon forces there, and applied, fluid and gravity compensation
+  forces act on bodies outside any joint; models with them are refused, see
+  :func:`instrument`);
 - ``qfrc_actuator`` along ``xaxis``: actuator torque (force) of each scalar joint;
 
 all as [torque; force] in world axes about the subtree centre of mass of the body's
@@ -23,6 +25,12 @@ Conventions (checked numerically in ``tests/test_data.py``):
 - loads of frame ``f`` are means over its ``substeps`` steps (impulse / frame time):
   with the Euler integrator ``qvel[s+1] = qvel[s] + h qacc[s]`` exactly, so these are
   the loads that move frame ``f`` to ``f+1``.
+- joint damping is integrated implicitly, as MuJoCo does by default (``eulerdamp``):
+  the step uses ``qacc' = (M + h B)^-1 M qacc`` instead of the ``qacc`` that MuJoCo's
+  wrenches and sensors are computed with, i.e. the damping force is ``-B qvel[s+1]``.
+  The recorder moves accelerations and joint loads to ``qacc'`` (the loads that really
+  move the state, :func:`mdgs.data._kernels.implicit_damping`), so Newton holds against
+  the trajectory itself and not only against MuJoCo's pre-step ``qacc``.
 - torques are about the body's centre of mass, forces in the world frame.
 
 Newton per body then reads ``m_b a_b = m_b g + F_contact + F_actuator + F_joint`` with
@@ -72,8 +80,39 @@ def _name(model, objtype, i) -> str:
     return mujoco.mj_id2name(model, objtype, i) or f"#{i}"
 
 
+def _spatial_tendon_forces(model: mujoco.MjModel, t: int) -> list[str]:
+    """What makes spatial tendon ``t`` pull on bodies (empty: it never exerts a force)."""
+    why = []
+    if model.tendon_limited[t]:
+        why.append("a length limit")
+    if np.any(np.asarray(model.tendon_stiffness[t]) != 0) or np.any(
+        np.asarray(getattr(model, "tendon_stiffnesspoly", np.zeros((model.ntendon, 1)))[t]) != 0
+    ):
+        why.append("stiffness")
+    if np.any(np.asarray(model.tendon_damping[t]) != 0):
+        why.append("damping")
+    if model.tendon_frictionloss[t] != 0:
+        why.append("friction loss")
+    if np.any(np.asarray(getattr(model, "tendon_armature", np.zeros(model.ntendon))[t]) != 0):
+        why.append("armature")
+    tendon_trn = model.actuator_trntype == int(mujoco.mjtTrn.mjTRN_TENDON)
+    if np.any(tendon_trn & (model.actuator_trnid[:, 0] == t)):
+        why.append("an actuator")
+    return why
+
+
 def _check_supported(model: mujoco.MjModel) -> None:
-    """Refuse models whose loads the recorder cannot attribute to bodies."""
+    """Refuse models whose loads the recorder cannot attribute to bodies.
+
+    Fixed tendons act in joint space (their limit, spring, damping and actuator forces are
+    joint torques or forces, recorded as joint and actuator loads); a spatial tendon pulls
+    the bodies at its sites, a load that is neither a joint's nor a contact's.
+    """
+    moving = (model.body_weldid[1:] != 0) & (model.body_mass[1:] > 0)
+    if model.nv == 0 or not moving.any():
+        raise SceneError(
+            "the model has no moving body (no joint, or only massless bodies); add a joint (e.g. <freejoint/>) to a body with mass so there is motion to record"
+        )
     if model.nflex:
         raise SceneError(
             "the model has flexible bodies (flex/skin); only rigid bodies can be partitioned into elements, remove the flex elements"
@@ -86,6 +125,14 @@ def _check_supported(model: mujoco.MjModel) -> None:
         raise SceneError(
             "the model has equality constraints; their forces are not attributed to bodies by the recorder — replace them by joints"
         )
+    for t in range(model.ntendon):
+        wraps = model.wrap_type[model.tendon_adr[t] : model.tendon_adr[t] + model.tendon_num[t]]
+        spatial = np.any(wraps != int(mujoco.mjtWrap.mjWRAP_JOINT))
+        why = _spatial_tendon_forces(model, t) if spatial else []
+        if why:
+            raise SceneError(
+                f"spatial tendon '{_name(model, _O.mjOBJ_TENDON, t)}' has {' and '.join(why)}, so it pulls bodies at its sites, a force the recorder cannot attribute to joints or contacts; use a fixed tendon or joint limits, springs and actuators instead"
+            )
     if model.opt.density > 0 or model.opt.viscosity > 0:
         raise SceneError("the model has fluid forces (option density/viscosity > 0); set both to 0")
     if np.any(model.body_gravcomp != 0):
@@ -127,6 +174,9 @@ class Instrumented:
     bit (sensors only read the state), and ``model``'s sensordata up to the contact sensors.
     Contact-free steps are stepped with it, skipping the contact sensors' cost (see
     :func:`mdgs.data.engine.simulate`)."""
+    implicit_damping: bool = False
+    """Joint damping integrated implicitly (MuJoCo's default ``eulerdamp``): the recorder
+    moves accelerations and joint loads from MuJoCo's ``qacc`` to the integrated one."""
 
     @property
     def nbody(self) -> int:
@@ -140,10 +190,12 @@ def _compile(spec: mujoco.MjSpec) -> mujoco.MjModel:
         raise SceneError(f"MuJoCo cannot compile the scene: {e}") from None
 
 
-def _load_spec(mjcf: str, path: str | None) -> mujoco.MjSpec:
+def _load_spec(mjcf: str, path: str | None, assets: dict[str, bytes] | None) -> mujoco.MjSpec:
     try:
         if path is not None:
             return mujoco.MjSpec.from_file(path)
+        if assets:  # include files and asset files, by the name the MJCF reads them
+            return mujoco.MjSpec.from_string(mjcf, include=assets, assets=assets)
         return mujoco.MjSpec.from_string(mjcf)
     except Exception as e:
         raise SceneError(f"MuJoCo cannot parse the MJCF: {e}") from None
@@ -153,16 +205,21 @@ def instrument(
     mjcf: str,
     *,
     path: str | None = None,
+    assets: dict[str, bytes] | None = None,
     partition: PartitionParams = PartitionParams(),
     contact_slots: int = CONTACT_SLOTS,
 ) -> Instrumented:
     """Compile ``mjcf`` (or the file ``path``, which resolves includes and assets) with sensors.
 
-    Raises :class:`SceneError` for what cannot be recorded (flex, mocap, equality
-    constraints, fluid forces, gravity compensation, external-force actuators) and
+    ``assets``: bytes of the files ``mjcf`` reads, by name (see
+    :func:`mdgs.data.engine.self_contained_mjcf`).
+
+    Raises :class:`SceneError` for what cannot be recorded (no moving body, flex, mocap,
+    equality constraints, spatial tendons that exert force, fluid forces, gravity
+    compensation, external-force actuators) and
     :class:`mdgs.partition.PartitionError` for geoms that cannot be partitioned.
     """
-    spec = _load_spec(mjcf, path)
+    spec = _load_spec(mjcf, path, assets)
     notes = []
     if spec.option.integrator != mujoco.mjtIntegrator.mjINT_EULER:
         notes.append(
@@ -171,13 +228,11 @@ def instrument(
         spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
     base = _compile(spec)
     _check_supported(base)
-    if np.any(base.dof_damping > 0) and not (
+    # MuJoCo integrates joint damping implicitly unless the model disables eulerdamp; the
+    # recorder follows it (FrameReducer's implicit-damping correction), never the reverse
+    implicit_damping = bool(np.any(base.dof_damping > 0)) and not (
         base.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
-    ):
-        notes.append(
-            "joint damping integrated explicitly (eulerdamp disabled) so that loads match finite differences"
-        )
-        spec.option.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
+    )
     part = partition_model(base, partition)
 
     bodies = list(spec.bodies)
@@ -244,6 +299,7 @@ def instrument(
         anchor_node=anchor,
         child_anchor_node=child_anchor,
         lean_model=lean,
+        implicit_damping=implicit_damping,
     )
 
 
@@ -432,6 +488,13 @@ class FrameReducer:
         if len(j):
             fields += ["qfrc_actuator", "xaxis"] + (["xanchor"] if self.act_slide.any() else [])
         fields += ["sensordata"] + (["ncon"] if self.C else [])
+        self.implicit = bool(inst.implicit_damping)
+        if self.implicit:  # the integrated acceleration and what maps it to body motion
+            fields += ["qvel", "qacc", "cdof", "ximat"]
+            self.h = float(m.opt.timestep)
+            self.dof_body = m.dof_bodyid.astype(np.int64)
+            self.body_mass = np.ascontiguousarray(m.body_mass, dtype=float)
+            self.body_inertia = np.ascontiguousarray(m.body_inertia, dtype=float)
         self.fields = tuple(fields)
         """The MjData fields :meth:`loads` and :meth:`kinematics` read, to record every step."""
         self.lean_fields = tuple(f for f in fields if f != "cfrc_ext")
@@ -444,12 +507,14 @@ class FrameReducer:
         rec: dict[str, np.ndarray],
         contact: dict[str, np.ndarray] | None = None,
         rows: np.ndarray | None = None,
+        qvel0: np.ndarray | None = None,
     ) -> dict[str, np.ndarray]:
         """Per-step records ``[X, k, ...]`` -> per-frame loads ``[X, ...]``.
 
         The contact fields (:attr:`contact_fields`, the model's full sensordata) come from
         ``rec``, or from ``contact`` (``[len(rows), k, ...]``) for frames ``rows`` only,
-        the others having had no contact.
+        the others having had no contact. ``qvel0 [X, nv]``: each frame's initial joint
+        velocities, needed with implicit joint damping (:attr:`implicit`).
         """
         k, B = self.k, self.B
         cint = rec["cfrc_int"]
@@ -462,6 +527,14 @@ class FrameReducer:
         _kernels.joint_loads(cint, xipos, sub, self.root, self.child_ptr, self.child_idx, k, joint, fint)  # fmt: skip
         acc = np.empty((X, B, 3))
         _kernels.step_means(rec["sensordata"], self.lin0, B, self.g, k, acc)
+        if self.implicit:
+            if qvel0 is None:
+                raise ValueError("internal: implicit joint damping needs each frame's qvel0")
+            _kernels.implicit_damping(
+                rec["qvel"], np.ascontiguousarray(qvel0, dtype=float), rec["qacc"], rec["cdof"],
+                rec["ximat"], xipos, sub, self.root, self.parent, self.dof_body, self.body_mass,
+                self.body_inertia, self.h, k, acc, joint, fint,
+            )  # fmt: skip
         out = {"joint": joint, "fint": fint, "acc": acc}
         J = len(self.act_joint)
         if J:
@@ -555,10 +628,12 @@ class FrameReducer:
             "contact_overflow": lo["contact_overflow"],
         }
 
-    def frames(self, rec: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    def frames(
+        self, rec: dict[str, np.ndarray], qvel0: np.ndarray | None = None
+    ) -> dict[str, np.ndarray]:
         """Records ``[X, k, ...]`` (X frames of k steps each, full sensordata) -> frames ``[X, ...]``."""
         kin = self.kinematics(*(rec[f][:, 0] for f in KINEMATICS))
-        lo = self.loads(rec)
+        lo = self.loads(rec, qvel0=qvel0)
         X = len(lo["joint"])
         cf = lo.pop("node_cf")
         out = {**kin, **self.finish(lo)}

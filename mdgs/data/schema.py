@@ -4,7 +4,9 @@ Layout of ``{split}.h5`` (all floats float64, SI units, world frame unless state
 
 - root attributes: the scalars of :data:`ROOT_ATTRS` (scene name, MJCF hash, ``dt``,
   ``substeps``, integrator, MuJoCo version, seed, partition parameters, ...).
-- ``/static``: the scene's MJCF text and the graph's static description
+- ``/static``: the scene's MJCF text (``/static/assets``: the files it reads, includes,
+  meshes, textures, each a byte array whose ``path`` attribute is the name the MJCF reads
+  it by; only for user MJCF that reads files) and the graph's static description
   (:data:`STATIC_ARRAYS`: node-to-body map, element masses, volumes, ``tau``, inertia,
   centroids, adjacency, body table, joint-load attachment nodes).
 - ``/frames``: per-frame arrays ``[trajectory, frame, ...]`` (:data:`FRAME_ARRAYS`).
@@ -34,6 +36,7 @@ __all__ = [
     "FRAME_ARRAYS",
     "STATIC_ARRAYS",
     "ROOT_ATTRS",
+    "OPTIONAL_ATTRS",
     "DatasetError",
     "markdown_table",
 ]
@@ -254,6 +257,13 @@ ROOT_ATTRS: dict[str, str] = {
     "traj_start": "index of the file's first trajectory within the split",
     "complete": "True once every trajectory of the split is in the file",
 }
+
+
+OPTIONAL_ATTRS: dict[str, str] = {
+    "mujoco_warnings": "MuJoCo's warnings while loading the model, e.g. deprecated attributes (JSON list; absent when none)",
+    "contact_overflow": "body-substeps with more contacts than the recorded slots (see /frames/contact_overflow; absent when none)",
+}
+"""Root attributes written only when they have something to say (older files lack them)."""
 
 
 def markdown_table(specs: tuple[ArraySpec, ...]) -> str:

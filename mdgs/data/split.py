@@ -44,6 +44,13 @@ class SplitData:
     qvel: np.ndarray | None = None
     act: np.ndarray | None = None
     path: str = ""
+    assets: dict | None = None
+
+    def mj_model(self):
+        """The scene's ``mujoco.MjModel``, compiled from the stored MJCF and the files it reads."""
+        import mujoco
+
+        return mujoco.MjModel.from_xml_string(self.mjcf, self.assets or None)
 
     @property
     def control(self) -> np.ndarray:
@@ -67,7 +74,7 @@ class SplitData:
                 "n_actuators": int(self.ctrl.shape[-1])}
 
 
-def control_map(mjcf: str, node_body: np.ndarray) -> np.ndarray:
+def control_map(mjcf, node_body: np.ndarray) -> np.ndarray:
     """Signs ``[nu, N]``: +1 on nodes of the body actuator k drives, -1 on its parent's, 0 elsewhere.
 
     The driven body is read from the MJCF compiled by MuJoCo: the body of the actuator's
@@ -77,7 +84,7 @@ def control_map(mjcf: str, node_body: np.ndarray) -> np.ndarray:
     """
     import mujoco
 
-    m = mujoco.MjModel.from_xml_string(mjcf)
+    m = mujoco.MjModel.from_xml_string(mjcf) if isinstance(mjcf, str) else mjcf  # MJCF text or a compiled model
     node_body = np.asarray(node_body)
     sign = np.zeros((m.nu, len(node_body)), np.float32)
     for k in range(m.nu):
@@ -100,7 +107,7 @@ def load_split(path: str | os.PathLike) -> SplitData:
 
     Raises :class:`~mdgs.data.schema.DatasetError` naming the file and the fix.
     """
-    from mdgs.data.io import open_dataset
+    from mdgs.data.io import model_from_dataset, open_dataset
 
     with open_dataset(path) as ds:
         x = ds.frames("node_pos").astype(np.float32)
@@ -110,6 +117,8 @@ def load_split(path: str | os.PathLike) -> SplitData:
         static = dict(ds.static)
         attrs = dict(ds.attrs)
         mjcf = ds.mjcf
+        assets = dict(getattr(ds, "assets", None) or {})
+        model = model_from_dataset(ds) if ctrl.shape[-1] else None
     for name, a in (("node_pos", x), ("node_vel", v), ("ctrl", ctrl)):
         if not np.isfinite(a).all():
             t = int(np.argwhere(~np.isfinite(a))[0][0])
@@ -117,10 +126,10 @@ def load_split(path: str | os.PathLike) -> SplitData:
                                "regenerate the dataset with `mdgs generate` or remove that trajectory")
     if x.shape[1] < 2:
         raise DatasetError(f"{path} has fewer than 2 frames per trajectory; generate a dataset with more frames")
-    sign = control_map(mjcf, static["node_body"]) if ctrl.shape[-1] else np.zeros((0, x.shape[2]), np.float32)
+    sign = control_map(model, static["node_body"]) if ctrl.shape[-1] else np.zeros((0, x.shape[2]), np.float32)
     return SplitData(x=x, v=v, ctrl=ctrl, control_sign=sign, static=static, attrs=attrs,
                      frame_dt=float(attrs["frame_dt"]), has_contact=bool(attrs["has_contact"]), mjcf=mjcf,
-                     qpos=qpos, qvel=qvel, act=act, path=str(path))
+                     qpos=qpos, qvel=qvel, act=act, path=str(path), assets=assets)
 
 
 def load_splits(folder: str | os.PathLike, names: tuple[str, ...]) -> dict[str, SplitData]:

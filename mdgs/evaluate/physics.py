@@ -49,11 +49,12 @@ def rigidity_violation(x, static: dict) -> np.ndarray:
     return np.abs(cur - ref).mean(-1)
 
 
-def hinge_anchors(mjcf: str) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
-    """``(child body, parent body, anchor in child frame, anchor in parent frame)`` of every hinge/ball joint."""
+def hinge_anchors(model) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+    """``(child body, parent body, anchor in child frame, anchor in parent frame)`` of every hinge/ball joint
+    of a ``mujoco.MjModel`` (or MJCF text)."""
     import mujoco
 
-    m = mujoco.MjModel.from_xml_string(mjcf)
+    m = mujoco.MjModel.from_xml_string(model) if isinstance(model, str) else model
     out = []
     for j in range(m.njnt):
         if int(m.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_BALL)):

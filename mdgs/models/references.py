@@ -102,9 +102,8 @@ class MuJoCoReference(Simulator):
             raise ModelError(f"dt_factor {k} does not divide the {sub} integrator steps per frame of {split.path}; "
                              f"choose a divisor of {sub}")
         try:
-            spec = mujoco.MjSpec.from_string(split.mjcf)
-            spec.option.integrator = getattr(mujoco.mjtIntegrator, "mjINT_" + str(split.attrs["integrator"]))
-            self._model = spec.compile()
+            self._model = split.mj_model()  # the stored MJCF with the files it reads
+            self._model.opt.integrator = getattr(mujoco.mjtIntegrator, "mjINT_" + str(split.attrs["integrator"]))
         except Exception as e:  # noqa: BLE001 - MuJoCo reports parse/compile problems as several types
             raise ModelError(f"MuJoCo cannot rebuild the scene of {split.path} ({e}); regenerate the dataset") from None
         self._model.opt.timestep = float(split.attrs["dt"]) * k

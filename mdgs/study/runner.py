@@ -228,7 +228,7 @@ def run_cell(study: StudyConfig, out: Path, cell: Cell, progress: Callable[[dict
         model = MODELS[cell.model].from_data(test, MODELS[cell.model].Config(**dict(cell.settings))).to(dev)
     line["parameters"] = model.parameter_count()
     line["train"] = train_info
-    anchors = hinge_anchors(test.mjcf)
+    anchors = hinge_anchors(test.mj_model())
     progress({"kind": "evaluate", "set": "test"})
     sets = {"test": _evaluate_set(model, test, dev, study.failure_factor, anchors, False)}
     if cell.kind in ("learned", "reference"):
