@@ -215,7 +215,7 @@ def test_nan_or_inf_in_a_dataset_is_reported(tiny_dir, tmp_path):
 
 @pytest.mark.parametrize("kind", ["empty", "foreign", "truncated", "nan"])
 def test_validate_data_on_an_unusable_file_is_one_sentence_and_exit_2(kind, tiny_dir, tmp_path, capsys):
-    from validation.cli import main
+    from mdgs.cli import main
 
     p = tmp_path / f"{kind}.h5"
     if kind == "empty":
