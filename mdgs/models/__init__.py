@@ -7,6 +7,7 @@ carries its ``Config`` dataclass (every default documented) and a one-line ``sum
 from __future__ import annotations
 
 from mdgs.models.base import Batch, ModelError, Simulator, State, batch_of, one_step_error
+from mdgs.models.gns import GNS
 from mdgs.models.mdgs import MDGS, MDGSNoConstraint, MDGSSingleSpeed
 from mdgs.models.references import ConstantTwist, MuJoCoReference
 
@@ -14,7 +15,7 @@ __all__ = ["MODELS", "LEARNED", "REFERENCES", "Simulator", "State", "Batch", "Mo
 
 #: name -> Simulator class: the one registry the CLI, the trainer, the evaluator and the study read.
 MODELS: dict[str, type[Simulator]] = {
-    cls.name: cls for cls in (MDGS, MDGSNoConstraint, MDGSSingleSpeed, ConstantTwist, MuJoCoReference)
+    cls.name: cls for cls in (MDGS, MDGSNoConstraint, MDGSSingleSpeed, ConstantTwist, MuJoCoReference, GNS)
 }
 #: Names of the models that are trained.
 LEARNED = tuple(n for n, c in MODELS.items() if c.learned)
