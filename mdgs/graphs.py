@@ -11,6 +11,8 @@ both directions present.
 - contact-oriented graph (Eq. 6, Appendix B.1.1): edge (i, j) iff ``|x_i - x_j| < r`` and
   i, j belong to different objects; rebuilt each step by a blockwise ``torch.cdist`` in
   its exact (non-matmul) mode, since PyG's ``radius_graph`` needs pyg-lib.
+- radius graph (GNS, :func:`radius_edges`): every ordered pair of nodes of one graph closer
+  than ``r``, self-edges included, whatever their objects; same blockwise exact ``cdist``.
 - GCN normalisation (Kipf & Welling 2017): ``A_hat = D^-1/2 (A + I) D^-1/2``, as a sparse
   CSR matrix over the batched nodes, or dense ``[N, N]`` for small static graphs.
 """
@@ -28,6 +30,7 @@ warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta"
 __all__ = [
     "object_edges",
     "contact_edges",
+    "radius_edges",
     "batch_edges",
     "gcn_norm",
     "gcn_norm_dense",
@@ -90,6 +93,33 @@ def contact_edges(pos: torch.Tensor, obj: torch.Tensor, r: float, static: torch.
         b, i, j = m.nonzero(as_tuple=True)
         out.append(torch.stack([b * N + i + i0, b * N + j]))
     return torch.cat(out, dim=1) if out else torch.zeros(2, 0, dtype=torch.long, device=pos.device)
+
+
+def radius_edges(pos: torch.Tensor, r: float, max_block_elems: int = 1 << 24) -> tuple[torch.Tensor, torch.Tensor]:
+    """Radius graph of each graph of a batch: every ordered pair closer than ``r``, self-edges included.
+
+    Parameters
+    ----------
+    pos : [B, N, 3] node positions, m.  r : cut-off radius, m (strict ``<``).
+    max_block_elems : largest ``B * rows * N`` distance block held at once (memory bound).
+
+    Returns
+    -------
+    ``(senders, receivers)``, each [E] int64 over the batched node index ``b * N + i``.
+    Distances by ``torch.cdist`` in its exact mode (see :func:`contact_edges`).
+    """
+    B, N, _ = pos.shape
+    rows = max(1, min(N, max_block_elems // max(1, B * N)))
+    snd, rcv = [], []
+    for i0 in range(0, N, rows):
+        d = torch.cdist(pos[:, i0:i0 + rows], pos, compute_mode="donot_use_mm_for_euclid_dist")  # [B, rows, N]
+        b, i, j = (d < r).nonzero(as_tuple=True)
+        rcv.append(b * N + i + i0)
+        snd.append(b * N + j)
+    if not rcv:
+        e = torch.zeros(0, dtype=torch.long, device=pos.device)
+        return e, e
+    return torch.cat(snd), torch.cat(rcv)
 
 
 def batch_edges(edge_index: torch.Tensor, num_nodes: int, batch_size: int) -> torch.Tensor:

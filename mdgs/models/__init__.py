@@ -7,6 +7,7 @@ carries its ``Config`` dataclass (every default documented) and a one-line ``sum
 from __future__ import annotations
 
 from mdgs.models.base import Batch, ModelError, Simulator, State, batch_of, one_step_error
+from mdgs.models.gns import GNS
 from mdgs.models.hgns import HGNS
 from mdgs.models.lgns import LGNS
 from mdgs.models.mdgs import MDGS, MDGSNoConstraint, MDGSSingleSpeed
@@ -15,10 +16,10 @@ from mdgs.models.references import ConstantTwist, MuJoCoReference
 __all__ = ["MODELS", "LEARNED", "REFERENCES", "Simulator", "State", "Batch", "ModelError", "batch_of", "one_step_error", "get_model"]
 
 #: name -> Simulator class: the one registry the CLI, the trainer, the evaluator and the study read.
+#: Learned models first (the paper's method, its ablations, then the peers), then the references.
 MODELS: dict[str, type[Simulator]] = {
-    cls.name: cls for cls in (MDGS, MDGSNoConstraint, MDGSSingleSpeed, ConstantTwist, MuJoCoReference)
+    cls.name: cls for cls in (MDGS, MDGSNoConstraint, MDGSSingleSpeed, GNS, LGNS, HGNS, ConstantTwist, MuJoCoReference)
 }
-MODELS |= {cls.name: cls for cls in (LGNS, HGNS)}  # issue 12 peers: energy-based (mdgs/models/lgns.py, hgns.py)
 #: Names of the models that are trained.
 LEARNED = tuple(n for n, c in MODELS.items() if c.learned)
 #: Names of the non-learned references.

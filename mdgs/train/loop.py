@@ -59,7 +59,8 @@ class TrainConfig:
     model_name : a key of :data:`mdgs.models.MODELS` (a learned model).
     epochs : passes over all (trajectory, frame) training pairs.
     batch_size : graphs per optimisation step.
-    lr : learning rate of the model's optimiser (MDGS, B.2: Adam 1e-3).
+    lr : learning rate of the model's optimiser; ``None``: the model's own ``default_lr`` (MDGS, B.2:
+        Adam 1e-3; GNS 1e-4).
     seed : seeds parameter initialisation, batch order and noise.
     device : "auto" (CUDA when present), "cpu" or "cuda".
     max_steps : cap on optimisation steps per epoch (0: no cap, a full pass).
@@ -74,7 +75,7 @@ class TrainConfig:
     model_name: str = "mdgs"
     epochs: int = 20
     batch_size: int = 32
-    lr: float = 1e-3
+    lr: float | None = None
     seed: int = 0
     device: str = "auto"
     max_steps: int = 0
@@ -87,7 +88,7 @@ class TrainConfig:
             val = getattr(self, name)
             if not isinstance(val, int) or val < lo:
                 raise RunError(f"--{name.replace('_', '-')} {val} must be an integer of at least {lo}")
-        if not (isinstance(self.lr, float | int) and np.isfinite(self.lr) and self.lr > 0):
+        if self.lr is not None and not (isinstance(self.lr, float | int) and np.isfinite(self.lr) and self.lr > 0):
             raise RunError(f"--lr {self.lr} must be a positive number")
         if self.seed < 0:
             raise RunError(f"--seed {self.seed} must be at least 0")
@@ -123,6 +124,8 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, spli
     if not cls.learned:
         raise ModelError(f"model {cfg.model_name!r} is a non-learned reference with nothing to train; "
                          f"evaluate it directly with `mdgs evaluate --model {cfg.model_name} --data DIR`")
+    if cfg.lr is None:
+        cfg = replace(cfg, lr=cls.default_lr)
     tr, va = _load_splits(cfg, splits)
     dist_, device = setup(cfg.device)
     try:
