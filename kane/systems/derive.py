@@ -213,6 +213,12 @@ def _plain_model_data(system: AnalyticSystem, km: me.KanesMethod, kin: dict) -> 
     else:
         mm = km.mass_matrix.applyfunc(plain)
         fo = km.forcing.applyfunc(plain)
+    if kin.get("armature"):
+        frstar, mm = sp.Matrix(frstar), sp.Matrix(mm)
+    for k, arm in kin.get("armature", ()):
+        # MuJoCo's armature: a rotor inertia on the joint's own speed, M_kk += armature
+        frstar[k] = frstar[k] - arm * udsym[k]
+        mm[k, k] = mm[k, k] + arm
     qdot = tuple(plain(kdd[x.diff(t)]) for x in q)
     return {
         "q": qsym,
@@ -314,14 +320,14 @@ def lagranges_method(system: AnalyticSystem) -> tuple[me.LagrangesMethod, dict]:
 
     Kinematics are rebuilt with sympy's own angular velocities (``orientnew``) and
     ``u = dq/dt``; gravity and actuator loads enter as forces (Lagrangian = kinetic
-    energy). Only for trees without free joints, where Kane's speeds are also dq/dt.
+    energy). Only for trees without free or ball joints, where Kane's speeds are also dq/dt.
 
     Returns
     -------
     lm : sympy.physics.mechanics.LagrangesMethod (equations formed)
     extra : dict, as in :func:`kanes_method`.
     """
-    if system.derivation != "tree" or any(j.kind == "free" for _, j in system.joints):
+    if system.derivation != "tree" or any(j.kind in ("free", "ball") for _, j in system.joints):
         raise ValueError(
             f"system {system.name!r}: the Lagrange route needs a joint tree without free joints "
             "(Kane's speeds then equal dq/dt)"

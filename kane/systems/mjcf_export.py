@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from kane.systems.specs import BodySpec, GeomSpec, symbol
+from kane.systems.specs import BodySpec, GeomSpec, JointSpec, symbol
 
 if TYPE_CHECKING:
     from kane.systems.system import AnalyticSystem
@@ -15,6 +15,18 @@ def _fmt(x: float) -> str:
 
 
 def _mjcf(system: AnalyticSystem) -> str:
+    plain = all(
+        tuple(float(c) for c in b.quat) == (1.0, 0.0, 0.0, 0.0)
+        and all(
+            j.kind != "ball" and j == JointSpec(j.name, j.kind, j.axis) for j in b.joints
+        )
+        for b in system.bodies
+    ) and all(a.gear == 1 for a in system.actuators)
+    if not plain:
+        raise ValueError(
+            f"system {system.name!r}: MJCF export covers hinge, slide and free joints without "
+            "anchors, references, passive loads, body rotations or gears; use the original file"
+        )
     val = system.value
     v3 = lambda c: " ".join(_fmt(val(x)) for x in c)  # noqa: E731
     children: dict[str | None, list[BodySpec]] = {}

@@ -29,14 +29,35 @@ class JointSpec:
     name : str
         Joint name (MJCF name; the sympy symbols are ``q_<name>``, ``u_<name>``).
     kind : str
-        ``'hinge'`` (rad), ``'slide'`` (m) or ``'free'`` (top-level bodies only).
+        ``'hinge'`` (rad), ``'slide'`` (m), ``'ball'`` (3 rotations, last joint of its
+        body) or ``'free'`` (top-level bodies only).
     axis : tuple of 3 floats
-        Joint axis in the body frame (unit vector; ignored for free joints).
+        Joint axis in the body frame (unit vector; ignored for ball and free joints).
+    pos : tuple of 3
+        Joint anchor in the body frame, m (MJCF ``pos``; hinge and ball rotate about it).
+    ref : float
+        Coordinate at which the body sits at its MJCF pose (MJCF ``ref``, MuJoCo
+        ``qpos0``): hinge angle / slide offset is ``q - ref``.
+    damping : expr
+        Viscous damping per degree of freedom, N m s/rad or N s/m (load ``-damping u``).
+    stiffness : expr
+        Spring stiffness, N m/rad or N/m (hinge and slide: load ``-stiffness (q - springref)``).
+    springref : expr
+        Spring rest coordinate (MJCF ``springref``).
+    armature : expr
+        Rotor inertia added to the joint's diagonal mass-matrix entries (MJCF ``armature``),
+        kg m^2 or kg.
     """
 
     name: str
     kind: str
     axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    pos: tuple = (0, 0, 0)
+    ref: float = 0.0
+    damping: Expr = 0
+    stiffness: Expr = 0
+    springref: Expr = 0
+    armature: Expr = 0
 
 
 @dataclass(frozen=True)
@@ -79,6 +100,9 @@ class BodySpec:
         Parent body name; ``None`` for the world.
     pos : tuple of 3
         Body-frame origin in the parent frame when the joint coordinates are zero, m.
+    quat : tuple of 4
+        Orientation of the body frame in the parent frame at zero joint coordinates, unit
+        quaternion ``(w, x, y, z)`` (MJCF ``quat``); numbers, not parameters.
     joints : tuple of JointSpec
         Joints at the body origin, composed in order; empty: welded to the parent.
     mass : expr
@@ -103,11 +127,12 @@ class BodySpec:
     inertia: tuple = (0, 0, 0, 0, 0, 0)
     geoms: tuple[GeomSpec, ...] = ()
     external_wrench: bool = False
+    quat: tuple = (1, 0, 0, 0)
 
 
 @dataclass(frozen=True)
 class ActuatorSpec:
-    """A MuJoCo ``<motor>`` (gear 1) on a hinge or slide joint.
+    """A MuJoCo actuator on a hinge or slide joint (``<motor>`` with gear 1 in the built-in systems).
 
     Attributes
     ----------
@@ -117,8 +142,11 @@ class ActuatorSpec:
         Joint it drives.
     ctrlrange : (float, float)
         Control limits, N m (hinge) or N (slide).
+    gear : float
+        Transmission ratio: the joint receives ``gear * tau`` (MJCF ``gear``).
     """
 
     name: str
     joint: str
     ctrlrange: tuple[float, float] = (-1.0, 1.0)
+    gear: float = 1.0

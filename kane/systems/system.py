@@ -109,12 +109,12 @@ class AnalyticSystem:
     @cached_property
     def nq_mujoco(self) -> int:
         """Length of MuJoCo ``qpos``."""
-        return sum(7 if j.kind == "free" else 1 for _, j in self.joints)
+        return sum({"free": 7, "ball": 4}.get(j.kind, 1) for _, j in self.joints)
 
     @cached_property
     def nv_mujoco(self) -> int:
         """Length of MuJoCo ``qvel``."""
-        return sum(6 if j.kind == "free" else 1 for _, j in self.joints)
+        return sum({"free": 6, "ball": 3}.get(j.kind, 1) for _, j in self.joints)
 
     def cache_key(self) -> str:
         """Hash of the description, parameter values, sympy version and cache version."""
