@@ -53,7 +53,7 @@ from kane.systems import ActuatorSpec, AnalyticSystem, BodySpec, JointSpec, Symb
 from kane.systems.derive import _plain_model_data
 from kane.systems.tree import _tree_kinematics
 
-__all__ = ["MjcfUnsupported", "MjcfModel", "from_mjcf", "load_model", "crosscheck_mjcf", "random_states"]
+__all__ = ["MjcfUnsupported", "MjcfModel", "from_mjcf", "load_model", "crosscheck_mjcf", "random_states", "compiled_mjcf"]
 
 
 #: MuJoCo enum values (mjtJoint, mjtTrn), as plain ints for comparison with MjModel arrays.
@@ -424,34 +424,113 @@ def _eval(fn, sm: SymbolicModel, arrays, params: dict[str, float] | None = None)
     return np.asarray(fn(*cols, *[vals[str(p)] for p in sm.params]), float)
 
 
+def _f(x) -> str:
+    return " ".join(format(float(v), ".17g") for v in np.atleast_1d(x))
+
+
+def compiled_mjcf(m) -> tuple[str, dict[str, int]]:
+    """Full-precision MJCF of a compiled model's tree, with explicit inertials.
+
+    Bodies with their frames (``body_pos``, ``body_quat``), joints (type, axis, anchor,
+    ``ref``, armature) and MuJoCo's mass properties (``body_ipos``, ``body_iquat``,
+    ``body_inertia``) written with 17 significant digits; geoms, actuators and passive
+    loads left out. Returns the XML and ``{joint name in the XML: MuJoCo joint id}``.
+    Pinocchio reads this file when its own reading of the user's file gives other mass
+    properties than MuJoCo's (it ignores the mass of visual geoms, for instance).
+    """
+    kids: dict[int, list[int]] = {}
+    for b in range(1, m.nbody):
+        kids.setdefault(int(m.body_parentid[b]), []).append(b)
+    names: dict[str, int] = {}
+    lines: list[str] = []
+    types = {_HINGE: "hinge", _SLIDE: "slide", _BALL: "ball"}
+
+    def body(b: int, ind: str) -> None:
+        lines.append(f'{ind}<body name="b{b}" pos="{_f(m.body_pos[b])}" quat="{_f(m.body_quat[b])}">')
+        for j in range(m.body_jntadr[b], m.body_jntadr[b] + m.body_jntnum[b]):
+            jn = f"j{j}"
+            names[jn] = j
+            jt = int(m.jnt_type[j])
+            if jt == _FREE:
+                lines.append(f'{ind}  <freejoint name="{jn}"/>')
+                continue
+            ref = f' ref="{_f(m.qpos0[m.jnt_qposadr[j]])}"' if jt != _BALL else ""
+            lines.append(f'{ind}  <joint name="{jn}" type="{types[jt]}" axis="{_f(m.jnt_axis[j])}" pos="{_f(m.jnt_pos[j])}"'
+                         f'{ref} armature="{_f(m.dof_armature[m.jnt_dofadr[j]])}"/>')
+        lines.append(f'{ind}  <inertial pos="{_f(m.body_ipos[b])}" quat="{_f(m.body_iquat[b])}" mass="{_f(m.body_mass[b])}" '
+                     f'diaginertia="{_f(m.body_inertia[b])}"/>')
+        for c in kids.get(b, []):
+            body(c, ind + "  ")
+        lines.append(f"{ind}</body>")
+
+    for b in kids.get(0, []):
+        body(b, "    ")
+    xml = "\n".join(['<mujoco model="compiled">', '  <compiler angle="radian" autolimits="true"/>',
+                     f'  <option gravity="{_f(m.opt.gravity)}"/>', "  <worldbody>", *lines, "  </worldbody>", "</mujoco>", ""])
+    return xml, names
+
+
+def _pinocchio_read(m, path: str, names: dict[str, int] | None):
+    """Pinocchio model of ``path`` and the MuJoCo (qpos, dof) addresses and joint types it covers."""
+    import mujoco
+    import pinocchio as pin
+
+    pm = pin.buildModelFromMJCF(path)
+    pm.gravity.linear = np.array(m.opt.gravity, float)
+    qadr, vadr, kinds = [], [], []
+    for name in list(pm.names)[1:]:
+        j = names[name] if names is not None else mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if j is None or j < 0:
+            raise ValueError(f"Pinocchio joint {name!r} has no MuJoCo joint of that name")
+        jt = int(m.jnt_type[j])
+        qadr += list(range(m.jnt_qposadr[j], m.jnt_qposadr[j] + {_FREE: 7, _BALL: 4}.get(jt, 1)))
+        vadr += list(range(m.jnt_dofadr[j], m.jnt_dofadr[j] + {_FREE: 6, _BALL: 3}.get(jt, 1)))
+        kinds.append(jt)
+    if len(qadr) != pm.nq or len(vadr) != pm.nv:
+        raise ValueError("Pinocchio's joints do not match MuJoCo's (composite joints?)")
+    return pm, np.array(qadr), np.array(vadr), kinds
+
+
 def _pinocchio_tree(mm: MjcfModel):
-    """Pinocchio model of the file, its gravity set from MuJoCo's, and the MuJoCo dofs it covers.
+    """Pinocchio model of the file, the MuJoCo dofs it covers, and which file it read.
 
     Pinocchio's MJCF reader builds one kinematic tree, the first top-level body's; the
     dofs of later trees are left out of the comparison (they are decoupled in the mass
-    matrix and bias forces).
+    matrix and bias forces). Pinocchio reads the user's file itself when its mass matrix
+    there agrees with MuJoCo's (``mj_fullM``) to 1e-12 at a random configuration; otherwise
+    (its MJCF reader computes other mass properties, e.g. ignoring visual geoms' mass) it
+    reads :func:`compiled_mjcf`, MuJoCo's compiled tree in full precision.
     """
+    import tempfile
+
+    import mujoco
     import pinocchio as pin
 
-    pm = pin.buildModelFromMJCF(mm.path)
-    pm.gravity.linear = np.array(mm.mj_model.opt.gravity, float)
-    m = mm.mj_model
-    names = list(pm.names)[1:]
-    import mujoco
+    from kane.crosscheck import _full_mass
 
-    qadr, vadr = [], []
-    for name in names:
-        j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
-        if j < 0:
-            raise ValueError(f"Pinocchio joint {name!r} has no MuJoCo joint of that name")
-        nq = {0: 7, 1: 4}.get(int(m.jnt_type[j]), 1)
-        nv = {0: 6, 1: 3}.get(int(m.jnt_type[j]), 1)
-        qadr += list(range(m.jnt_qposadr[j], m.jnt_qposadr[j] + nq))
-        vadr += list(range(m.jnt_dofadr[j], m.jnt_dofadr[j] + nv))
-    if len(qadr) != pm.nq or len(vadr) != pm.nv:
-        raise ValueError("Pinocchio's joints do not match MuJoCo's (composite joints?)")
-    kinds = [int(m.jnt_type[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n)]) for n in names]
-    return pm, np.array(qadr), np.array(vadr), kinds
+    m = mm.mj_model
+    try:
+        pm, qadr, vadr, kinds = _pinocchio_read(m, mm.path, None)
+        qpos, _, _ = random_states(m, 1, seed=12345)
+        d = mujoco.MjData(m)
+        d.qpos[:] = qpos[0]
+        mujoco.mj_forward(m, d)
+        Mf = _full_mass(m, d, np.zeros((m.nv, m.nv)))[np.ix_(vadr, vadr)]
+        pq, _, _, T = _to_pinocchio(kinds, qpos[0, qadr], np.zeros(len(vadr)), np.zeros(len(vadr)))
+        Mp = pin.crba(pm, pm.createData(), pq)
+        Mp = np.triu(Mp) + np.triu(Mp, 1).T
+        gap = float(np.abs(T.T @ Mp @ T - Mf).max() / max(np.abs(Mf).max(), 1e-300))
+        if gap <= 1e-12:
+            return pm, qadr, vadr, kinds, "the user's file"
+        why = f"its reading of the file gives a mass matrix {gap:.1e} off MuJoCo's"
+    except Exception as exc:
+        why = f"it could not read the file as MuJoCo does ({type(exc).__name__})"
+    xml, names = compiled_mjcf(m)
+    with tempfile.NamedTemporaryFile("w", suffix=".xml") as fh:
+        fh.write(xml)
+        fh.flush()
+        pm, qadr, vadr, kinds = _pinocchio_read(m, fh.name, names)
+    return pm, qadr, vadr, kinds, f"MuJoCo's compiled tree (kane.mjcf.compiled_mjcf), since {why}"
 
 
 def _to_pinocchio(kinds, qpos, qvel, qacc):
@@ -507,8 +586,9 @@ def crosscheck_mjcf(mm: MjcfModel, n_states: int = 20, seed: int = 0, model: Sym
 
     Returns
     -------
-    dict: the residuals above, ``n_states``, ``pinocchio_dofs``, ``pinocchio_note``
-    (why the Pinocchio route did not run, when it did not), ``seconds``.
+    dict: the residuals above, ``n_states``, ``pinocchio_dofs``, ``pinocchio_source``
+    (which file Pinocchio read, see :func:`_pinocchio_tree`), ``pinocchio_note`` (dofs left
+    out, or why the Pinocchio route did not run), ``seconds``.
     """
     import mujoco
 
@@ -555,7 +635,8 @@ def crosscheck_mjcf(mm: MjcfModel, n_states: int = 20, seed: int = 0, model: Sym
     try:
         import pinocchio as pin
 
-        pm, qadr, vadr, kinds = _pinocchio_tree(mm)
+        pm, qadr, vadr, kinds, source = _pinocchio_tree(mm)
+        out["pinocchio_source"] = source
         pd = pm.createData()
         off = {k: 0.0 for k in system.params if k.startswith(("d_", "k_"))}
         errM = errR = 0.0
