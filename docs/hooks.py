@@ -209,7 +209,6 @@ _MJCF = re.compile(r"\{\{\s*mjcf:([A-Za-z0-9_./-]+)\s*\}\}")
 def _mjcf_block(rel: str, root: str) -> str:
     """Derived equations and engine residuals of one MJCF file (``{{ mjcf:PATH }}``)."""
     import sympy as sp
-    from sympy.physics.vector.printing import vlatex
 
     from kane.mjcf import crosscheck_mjcf, from_mjcf
 
@@ -229,14 +228,15 @@ def _mjcf_block(rel: str, root: str) -> str:
            "| coordinate | speed | dq/dt |", "|---|---|---|"]
     for qq, uu, qd in zip(sm.q, sm.u, sm.qdot, strict=False):
         out.append(f"| ${lx(qq)}$ | ${lx(uu)}$ | ${lx(qd)}$ |")
-    out += ["", "**Partial velocities** of each mass centre $v_r$ and partial angular velocities $\\omega_r$ "
-            "(world frame N; columns: the speeds above):", ""]
-    for name, vr, wr in mm.partial_velocities:
-        out.append(f"- body `{name}`: $v_r$ = " + ", ".join(f"${vlatex(v)}$" for v in vr) + "; $\\omega_r$ = "
-                   + ", ".join(f"${vlatex(w)}$" for w in wr))
+    out += ["", "**Partial velocities** of each mass centre $V$ and partial angular velocities $W$ "
+            "(column $r$: speed $u_r$; components in the body's own frame):", ""]
+    for name, V, W in mm.partial_velocities:
+        out.append(f"- body `{name}`: $V = {lx(V.applyfunc(sp.trigsimp))}$, $W = {lx(W)}$")
     out += ["", "**Generalized active forces** $F_r$ (gravity, damping, springs, actuator force symbols):", "",
-            f"$$F_r = {lx(sm.fr)}$$", "", "**Generalized inertia forces** $F^*_r$:", "", f"$$F^*_r = {lx(sm.frstar)}$$", "",
-            "**Mass matrix and forcing**, $M \\dot u = f$:", "", f"$$M = {lx(sm.mass_matrix)}, \\quad f = {lx(sm.forcing)}$$", "",
+            f"$$F_r = {lx(sm.fr)}$$", "", "**Generalized inertia forces** $F^*_r$ (shown after `trigsimp`):", "",
+            f"$$F^*_r = {lx(sm.frstar.applyfunc(sp.trigsimp))}$$", "",
+            "**Mass matrix and forcing**, $M \\dot u = f$:", "",
+            f"$$M = {lx(sm.mass_matrix.applyfunc(sp.trigsimp))}, \\quad f = {lx(sm.forcing)}$$", "",
             "**Parameters** (MuJoCo's compiled values, SI units):", "", "| symbol | value |", "|---|---|"]
     for k, v in sorted(mm.system.params.items()):
         out.append(f"| ${lx(sp.Symbol(k))}$ | {v:.6g} |")

@@ -11,16 +11,16 @@ armature become named parameter symbols (``m_<body>``, ``cx_<body>``, ``Ixx_<bod
 ``px_<body>``, ``d_<joint>``, ``k_<joint>``, ``a_<joint>``, ``g``) whose values are
 MuJoCo's numbers; axes, anchors and fixed rotations stay numbers.
 
-Kane's equations are formed two ways (:class:`MjcfModel`):
+Kane's equations are formed two ways (:class:`MjcfModel`), from the same description:
 
-* ``explicit``: Kane & Levinson (1985), Eqs. (5.4.1) and (5.4.12)-(5.4.13) written out:
-  partial velocities ``v_r = d v / d u_r`` and ``omega_r = d omega / d u_r`` of every
-  mass centre and frame; generalized active forces ``F_r = sum (R . v_r + T . omega_r)``
-  over the loads (gravity, joint damping/stiffness, actuator forces as symbols
-  ``tau_<actuator>``); generalized inertia forces ``F*_r = -sum (m a . v_r + (I alpha +
-  omega x I omega) . omega_r)``; armature adds ``-a_k udot_k``.
-* ``kanes_method``: sympy's own ``KanesMethod`` on the same kinematics, an independent
-  second derivation of the same terms.
+* ``explicit``: Kane & Levinson (1985) written out in body-frame components
+  (:func:`kane.systems.bodyframe.bodyframe_kane`): partial velocities ``V``, ``W`` of every
+  mass centre and body; generalized active forces ``F_r`` (gravity, joint damping and
+  springs, actuator forces as symbols ``tau_<actuator>``); generalized inertia forces
+  ``F*_r = -sum (m a . v_r + (I alpha + omega x I omega) . omega_r)``; armature adds
+  ``-a_k udot_k``. No sympy mechanics, no symbolic time derivative.
+* ``kanes_method``: sympy's own ``KanesMethod`` on sympy frames and points built by
+  :func:`kane.systems.tree._tree_kinematics`, an independent second derivation.
 
 Coordinates (MuJoCo <-> sympy, see :mod:`kane.systems`): hinge/slide ``q`` = ``qpos``;
 ball and free rotations as body-fixed Z-Y-X angles of the joint's own rotation, with
@@ -47,18 +47,25 @@ from pathlib import Path
 
 import numpy as np
 import sympy as sp
-from sympy.physics import mechanics as me
 
 from kane.systems import ActuatorSpec, AnalyticSystem, BodySpec, JointSpec, SymbolicModel, symbol
+from kane.systems.bodyframe import bodyframe_kane
 from kane.systems.derive import _plain_model_data
-from kane.systems.tree import _tree_kinematics
 
-__all__ = ["MjcfUnsupported", "MjcfModel", "from_mjcf", "load_model", "crosscheck_mjcf", "random_states", "compiled_mjcf"]
+__all__ = ["KANES_METHOD_MAX_DEPTH", "MjcfUnsupported", "MjcfModel", "from_mjcf", "load_model", "crosscheck_mjcf", "random_states", "compiled_mjcf"]
 
 
 #: MuJoCo enum values (mjtJoint, mjtTrn), as plain ints for comparison with MjModel arrays.
 _FREE, _BALL, _SLIDE, _HINGE = 0, 1, 2, 3
 _TRN_JOINT = 0
+
+
+#: sympy's KanesMethod builds its expressions on chains of sympy frames and grows fast with
+#: the number of joints on one path: measured (2 shared cores) 3-15 s for 4 joints in a
+#: chain (examples/mjcf/arm.xml), 3.6 min for 7 (the paper's space-single scene: a 6-joint
+#: arm on a free base). Deeper trees are derived by the body-frame route only and checked
+#: against MuJoCo and Pinocchio.
+KANES_METHOD_MAX_DEPTH = 5
 
 
 class MjcfUnsupported(ValueError):
@@ -242,66 +249,6 @@ def _system_from_model(m, name: str, path) -> tuple[AnalyticSystem, list[int]]:
 # --------------------------------------------------------------------------------------
 
 
-class _ExplicitKane:
-    """Kane's equations written out from partial velocities (the ``explicit`` route).
-
-    Kane & Levinson (1985): generalized active force ``F_r = sum_P v_r^P . R_P + sum_B
-    omega_r^B . T_B`` (Eq. 5.4.1 ff.) and generalized inertia force ``F*_r = sum_B
-    -(m a . v_r + (I alpha + omega x I omega) . omega_r)`` (Eq. 5.4.12 ff.), with partial
-    velocities the coefficients of ``u_r`` in the velocities (sympy vectors, world frame
-    N). Offers what
-    :func:`kane.systems.derive._plain_model_data` reads from a ``KanesMethod``:
-    ``kindiffdict()``, ``mass_matrix``, ``forcing``.
-    """
-
-    def __init__(self, kin: dict):
-        t = me.dynamicsymbols._t
-        N = kin["frame"]
-        u = list(kin["u"])
-        n = len(u)
-        ud = [x.diff(t) for x in u]
-        no_ud = dict.fromkeys(ud, sp.S.Zero)
-        # kinematic differential equations, each of the form dq/dt - f(q, u)
-        self._kdd = {qq.diff(t): sp.solve(e, qq.diff(t))[0] for e, qq in zip(kin["kd"], kin["q"], strict=True)}
-        # generalized active forces F_r = sum_P v_r^P . R_P + sum_B omega_r^B . T_B
-        fr = [sp.S.Zero] * n
-        for where, vec in kin["loads"]:
-            vel = where.ang_vel_in(N) if isinstance(where, me.ReferenceFrame) else where.vel(N)
-            for r, p in enumerate(me.partial_velocity([vel], u, N)[0]):
-                fr[r] += p.dot(vec)
-        # generalized inertia forces F*_r = -sum_B (m a . v_r + L* . omega_r), split as
-        # -(M udot)_r + f*_r: M_rs = sum_B m v_r . v_s + omega_r . I . omega_s (the partial
-        # velocities carry no udot), f*_r the rest at udot = 0
-        M = sp.zeros(n, n)
-        fstar = [sp.S.Zero] * n
-        self.partials: list[tuple[str, list, list]] = []
-        for body in kin["bodies"]:
-            G, B, m = body.masscenter, body.frame, body.mass
-            v, w = G.vel(N), B.ang_vel_in(N)
-            vr, wr = me.partial_velocity([v, w], u, N)
-            self.partials.append((body.name, vr, wr))
-            Idy = body.central_inertia
-            Iw = [Idy.dot(x) for x in wr]
-            for r in range(n):
-                for s_ in range(r, n):
-                    e = m * vr[r].dot(vr[s_]) + wr[r].dot(Iw[s_])
-                    M[r, s_] += e
-                    if s_ != r:
-                        M[s_, r] += e
-            a0 = v.dt(N).xreplace(self._kdd).xreplace(no_ud)
-            alpha0 = w.dt(N).xreplace(self._kdd).xreplace(no_ud)
-            Lstar0 = Idy.dot(alpha0) + w.cross(Idy.dot(w))  # inertia torque L* at udot = 0 (Eq. 19)
-            for r in range(n):
-                fstar[r] += -(m * a0.dot(vr[r])) - Lstar0.dot(wr[r])
-        self.fr = sp.Matrix(fr)
-        self.frstar = -M * sp.Matrix(ud) + sp.Matrix(fstar)
-        self.mass_matrix = M
-        self.forcing = self.fr + sp.Matrix(fstar)
-
-    def kindiffdict(self) -> dict:
-        return self._kdd
-
-
 @dataclass(frozen=True, eq=False)
 class MjcfModel:
     """A user's MJCF tree as an analytic system, with Kane's equations derived two ways.
@@ -329,16 +276,18 @@ class MjcfModel:
         return load_model(self.path)
 
     @cached_property
-    def explicit(self) -> SymbolicModel:
-        """Kane's equations from explicit partial velocities (the primary derivation)."""
+    def _bodyframe(self) -> dict:
         t0 = time.perf_counter()
-        kin = _tree_kinematics(self.system, speeds="u")
-        ek = _ExplicitKane(kin)
-        kin["fr"], kin["frstar"] = ek.fr, ek.frstar
-        data = _plain_model_data(self.system, ek, kin)
-        sec = time.perf_counter() - t0
-        self._timing["explicit"] = sec
-        return SymbolicModel(system=self.system, seconds=sec, **data)
+        data = bodyframe_kane(self.system)
+        self._timing["explicit"] = time.perf_counter() - t0
+        return data
+
+    @cached_property
+    def explicit(self) -> SymbolicModel:
+        """Kane's equations from explicit partial velocities in body-frame components
+        (:func:`kane.systems.bodyframe.bodyframe_kane`, the primary derivation)."""
+        data = {k: v for k, v in self._bodyframe.items() if k != "partials"}
+        return SymbolicModel(system=self.system, seconds=self._timing["explicit"], **data)
 
     @cached_property
     def kanes_method(self) -> SymbolicModel:
@@ -350,11 +299,25 @@ class MjcfModel:
         self._timing["kanes_method"] = sec
         return SymbolicModel(system=self.system, seconds=sec, **data)
 
+    @property
+    def partial_velocities(self) -> list[tuple[str, sp.Matrix, sp.Matrix]]:
+        """``(body, V, W)`` per massive body: column r of ``V`` (3 x n_u) is the partial
+        velocity of its mass centre, of ``W`` its partial angular velocity, both in the
+        body's own frame components (plain symbols)."""
+        return self._bodyframe["partials"]
+
     @cached_property
-    def partial_velocities(self) -> list[tuple[str, list, list]]:
-        """``(body, [v_r], [omega_r])`` per massive body: partial velocities of its mass
-        centre and partial angular velocities (sympy vectors; dynamicsymbols q(t), u(t))."""
-        return _ExplicitKane(_tree_kinematics(self.system, speeds="u")).partials
+    def joint_depth(self) -> int:
+        """Most joints on one path from the world to a body."""
+        depth: dict = {None: 0}
+        for b in self.system.bodies:
+            depth[b.name] = depth[b.parent] + len(b.joints)
+        return max(depth.values())
+
+    @property
+    def kanes_method_applies(self) -> bool:
+        """Whether sympy's ``KanesMethod`` runs as the second derivation (see :data:`KANES_METHOD_MAX_DEPTH`)."""
+        return self.joint_depth <= KANES_METHOD_MAX_DEPTH
 
     @property
     def timing(self) -> dict:
@@ -579,7 +542,9 @@ def crosscheck_mjcf(mm: MjcfModel, n_states: int = 20, seed: int = 0, model: Sym
       against ``rnea`` (Pinocchio has no joint damping/springs in ``rnea``), on the dofs
       of the tree Pinocchio reads (the first top-level body's);
     * ``kanes_method``: the explicit derivation against sympy's ``KanesMethod``, both
-      evaluated at the same states (mass matrix and forcing).
+      evaluated at the same states (mass matrix and forcing); for trees with more than
+      :data:`KANES_METHOD_MAX_DEPTH` joints in a chain ``kanes_method_note`` says it was
+      not run.
 
     Residuals: max |difference| / max |reference term| over all states (mass:
     max |M|; forces: the largest of |qfrc_bias|, |qfrc_passive|, |M udot|).
@@ -655,7 +620,10 @@ def crosscheck_mjcf(mm: MjcfModel, n_states: int = 20, seed: int = 0, model: Sym
     except Exception as exc:  # Pinocchio could not read the file: say why, decide nothing
         out["pinocchio_note"] = f"Pinocchio route not run ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
     # explicit derivation vs KanesMethod, numerically at the same states
-    if model is None:
+    if model is None and not mm.kanes_method_applies and "kanes_method" not in mm.__dict__:  # not derived yet
+        out["kanes_method_note"] = (f"sympy KanesMethod not run: {mm.joint_depth} joints in a chain "
+                                    f"(> {KANES_METHOD_MAX_DEPTH}) take it minutes")
+    elif model is None:
         km = mm.kanes_method
         out["kanes_method"] = float(
             max(np.abs(km.mass(q) - kM).max() / mscale, np.abs(km.force(q, u, tau) - sm.force(q, u, tau)).max() / fscale)

@@ -18,11 +18,13 @@ Modules (one job each)
 * :mod:`~kane.systems.specs`: the parts of a description (``JointSpec``, ``GeomSpec``,
   ``BodySpec``, ``ActuatorSpec``) and ``symbol``;
 * :mod:`~kane.systems.system`: ``AnalyticSystem``, the description and its products;
-* :mod:`~kane.systems.tree`: kinematics of joint trees (hinge, slide, free) and their
+* :mod:`~kane.systems.tree`: kinematics of joint trees (hinge, slide, ball, free) and their
   MuJoCo coordinate maps;
 * :mod:`~kane.systems.rolling_disc`: kinematics of the nonholonomic rolling disc and its maps;
 * :mod:`~kane.systems.derive`: ``KanesMethod`` -> ``SymbolicModel`` (plain symbols, numpy
   functions), the disk cache (``cache_dir``);
+* :mod:`~kane.systems.bodyframe`: Kane's equations of a joint tree written out in
+  body-frame components (partial velocities, F_r, F*_r) without ``KanesMethod``;
 * :mod:`~kane.systems.mjcf_export`: the MJCF writer;
 * :mod:`~kane.systems.catalogue`: the built-in systems, ``SYSTEMS``, ``get_system``;
 * :mod:`~kane.systems.simulate`: ``Trajectory``, ``contact_wrenches``, ``simulate``.
@@ -34,6 +36,8 @@ Conventions (the mapping between sympy q/u and engine coordinates)
   generalized speed is ``u = dq/dt`` (equal to MuJoCo ``qvel``), ``udot`` = MuJoCo ``qacc``.
   Joint axes are body-frame vectors; several joints in one body compose in order (each
   axis in the frame left by the previous joints), exactly as MuJoCo composes them.
+* ball joint: body-fixed Z-Y-X angles of the joint's rotation (MuJoCo: quaternion), speeds =
+  angular velocity relative to the parent in the body's components (MuJoCo's ball ``qvel``).
 * free joint (top-level bodies only): coordinates ``(x, y, z, yaw, pitch, roll)``: the
   body-origin position in N (m) and body-fixed Z-Y-X Euler angles, ``R = Rz(yaw) Ry(pitch)
   Rx(roll)`` (rad). The speeds follow MuJoCo's free-joint ``qvel`` exactly:

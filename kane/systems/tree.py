@@ -49,12 +49,12 @@ def _zyx_rates(qs, us, t) -> list:
     ]
 
 
-def _fixed_rotation(parent: me.ReferenceFrame, name: str, quat) -> me.ReferenceFrame:
-    """Frame rotated from ``parent`` by the constant unit quaternion ``(w, x, y, z)`` (MJCF ``quat``).
+def _quat_dcm(quat) -> sp.Matrix:
+    """Rotation matrix of the constant unit quaternion ``(w, x, y, z)`` (MJCF ``quat``):
+    columns are the rotated frame's axes in the parent frame.
 
-    The rotation matrix (columns: the new frame's axes in ``parent``) is evaluated in
-    floating point; entries below 1e-15 in magnitude are set to 0 (float noise of axis-aligned
-    rotations such as a quarter turn).
+    Evaluated in floating point; entries below 1e-15 in magnitude are set to 0 (float noise
+    of axis-aligned rotations such as a quarter turn), entries 0, 1, -1 are exact.
     """
     w, x, y, z = (float(c) for c in quat)
     n = np.sqrt(w * w + x * x + y * y + z * z)
@@ -67,9 +67,13 @@ def _fixed_rotation(parent: me.ReferenceFrame, name: str, quat) -> me.ReferenceF
         ]
     )
     R[np.abs(R) < 1e-15] = 0.0
-    R = sp.Matrix(3, 3, [_exact(float(v)) if v in (0.0, 1.0, -1.0) else sp.Float(v, 17) for v in R.ravel()])
+    return sp.Matrix(3, 3, [_exact(float(v)) if v in (0.0, 1.0, -1.0) else sp.Float(v, 17) for v in R.ravel()])
+
+
+def _fixed_rotation(parent: me.ReferenceFrame, name: str, quat) -> me.ReferenceFrame:
+    """Frame rotated from ``parent`` by the constant unit quaternion ``quat`` (:func:`_quat_dcm`)."""
     F = me.ReferenceFrame(name)
-    F.orient_explicit(parent, R)  # F.dcm(parent) = R^T: F's axes are R's columns in parent
+    F.orient_explicit(parent, _quat_dcm(quat))  # F.dcm(parent) = R^T: F's axes are R's columns in parent
     return F
 
 
