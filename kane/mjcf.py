@@ -52,7 +52,7 @@ from kane.systems import ActuatorSpec, AnalyticSystem, BodySpec, JointSpec, Symb
 from kane.systems.bodyframe import bodyframe_kane
 from kane.systems.derive import _plain_model_data
 
-__all__ = ["KANES_METHOD_MAX_DEPTH", "MjcfUnsupported", "MjcfModel", "from_mjcf", "load_model", "crosscheck_mjcf", "random_states", "compiled_mjcf"]
+__all__ = ["KANES_METHOD_MAX_DEPTH", "KANES_METHOD_MAX_SPEEDS", "MjcfUnsupported", "MjcfModel", "from_mjcf", "load_model", "crosscheck_mjcf", "random_states", "compiled_mjcf"]
 
 
 #: MuJoCo enum values (mjtJoint, mjtTrn), as plain ints for comparison with MjModel arrays.
@@ -60,12 +60,15 @@ _FREE, _BALL, _SLIDE, _HINGE = 0, 1, 2, 3
 _TRN_JOINT = 0
 
 
-#: sympy's KanesMethod builds its expressions on chains of sympy frames and grows fast with
-#: the number of joints on one path: measured (2 shared cores) 3-15 s for 4 joints in a
-#: chain (examples/mjcf/arm.xml), 3.6 min for 7 (the paper's space-single scene: a 6-joint
-#: arm on a free base). Deeper trees are derived by the body-frame route only and checked
-#: against MuJoCo and Pinocchio.
-KANES_METHOD_MAX_DEPTH = 5
+#: sympy's KanesMethod builds its expressions on chains of sympy frames and slows down fast
+#: with the number of joints on one path and the number of speeds. Measured on 2 shared
+#: cores (benchmarks/bench_mjcf.py): 8 s for examples/mjcf/arm.xml (6 speeds, 4 joints deep),
+#: 14 s for floating_base.xml (16 speeds, 3 deep), 126 s for a 24-speed humanoid (4 deep),
+#: 218 s for the paper's space-single scene (12 speeds, 7 deep). It runs as the second
+#: derivation within these limits; larger trees are derived by the body-frame route alone
+#: (6 s for a 12-hinge chain, 15 s for the humanoid) and checked against MuJoCo and Pinocchio.
+KANES_METHOD_MAX_DEPTH = 4
+KANES_METHOD_MAX_SPEEDS = 16
 
 
 class MjcfUnsupported(ValueError):
@@ -317,7 +320,8 @@ class MjcfModel:
     @property
     def kanes_method_applies(self) -> bool:
         """Whether sympy's ``KanesMethod`` runs as the second derivation (see :data:`KANES_METHOD_MAX_DEPTH`)."""
-        return self.joint_depth <= KANES_METHOD_MAX_DEPTH
+        n_speeds = sum({"free": 6, "ball": 3}.get(j.kind, 1) for _, j in self.system.joints)
+        return self.joint_depth <= KANES_METHOD_MAX_DEPTH and n_speeds <= KANES_METHOD_MAX_SPEEDS
 
     @property
     def timing(self) -> dict:
@@ -542,9 +546,9 @@ def crosscheck_mjcf(mm: MjcfModel, n_states: int = 20, seed: int = 0, model: Sym
       against ``rnea`` (Pinocchio has no joint damping/springs in ``rnea``), on the dofs
       of the tree Pinocchio reads (the first top-level body's);
     * ``kanes_method``: the explicit derivation against sympy's ``KanesMethod``, both
-      evaluated at the same states (mass matrix and forcing); for trees with more than
-      :data:`KANES_METHOD_MAX_DEPTH` joints in a chain ``kanes_method_note`` says it was
-      not run.
+      evaluated at the same states (mass matrix and forcing); beyond
+      :data:`KANES_METHOD_MAX_DEPTH` joints in a chain or :data:`KANES_METHOD_MAX_SPEEDS`
+      speeds ``kanes_method_note`` says it was not run.
 
     Residuals: max |difference| / max |reference term| over all states (mass:
     max |M|; forces: the largest of |qfrc_bias|, |qfrc_passive|, |M udot|).
@@ -621,8 +625,8 @@ def crosscheck_mjcf(mm: MjcfModel, n_states: int = 20, seed: int = 0, model: Sym
         out["pinocchio_note"] = f"Pinocchio route not run ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
     # explicit derivation vs KanesMethod, numerically at the same states
     if model is None and not mm.kanes_method_applies and "kanes_method" not in mm.__dict__:  # not derived yet
-        out["kanes_method_note"] = (f"sympy KanesMethod not run: {mm.joint_depth} joints in a chain "
-                                    f"(> {KANES_METHOD_MAX_DEPTH}) take it minutes")
+        out["kanes_method_note"] = (f"sympy KanesMethod not run: {mm.joint_depth} joints deep, {len(sm.u)} speeds "
+                                    f"(limits {KANES_METHOD_MAX_DEPTH}, {KANES_METHOD_MAX_SPEEDS}) take it minutes")
     elif model is None:
         km = mm.kanes_method
         out["kanes_method"] = float(

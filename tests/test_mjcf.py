@@ -221,3 +221,19 @@ def test_mdgs_validate_mjcf_refuses_a_closed_loop_with_exit_2(capsys, tmp_path):
     out, err = capsys.readouterr()
     assert code == 2
     assert err.strip().count("\n") == 0 and "equality constraints" in err and "Traceback" not in err
+
+
+def test_a_deep_chain_is_derived_by_the_body_frame_route_and_checked_by_the_engines(tmp_path):
+    links = ""
+    for k in reversed(range(6)):
+        axis = "0 1 0" if k % 2 == 0 else "1 0 0"
+        links = (f'<body name="l{k}" pos="0 0 {-0.3 if k else 0}"><joint name="j{k}" type="hinge" axis="{axis}"/>'
+                 f'<geom type="capsule" fromto="0 0 0 0 0 -0.3" size="0.03"/>{links}</body>')
+    path = tmp_path / "chain6.xml"
+    path.write_text(f"<mujoco><worldbody>{links}</worldbody></mujoco>")
+    mm = from_mjcf(path)
+    assert mm.joint_depth == 6 and not mm.kanes_method_applies
+    res = run_mjcf_checks(path, claim_ids=["eq3"], quick=True, model=mm)
+    assert [r.route for r in res] == ["mujoco", "pinocchio"]
+    assert all(r.verdict == "holds" and r.residual <= RTOL for r in res)
+    assert "KanesMethod not run" in res[0].detail
