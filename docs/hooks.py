@@ -7,6 +7,10 @@ Placeholders (in any ``docs/*.md``)::
                        counterexample (if refuted) and its corrected statement with its own
                        equation, scope line, the verdict and cases of each clause, and table
     {{ report }}       the validation report: summary line, one row per check, environment
+    {{ mjcf:PATH }}    Kane's equations of the MJCF file PATH (relative to the repository
+                       root) derived by ``kane.mjcf.from_mjcf``: coordinates, speeds, partial
+                       velocities, F_r, F*_r, mass matrix, forcing, parameters, and the
+                       residuals against MuJoCo, Pinocchio and sympy's KanesMethod
 
 The LaTeX comes from ``sympy.latex`` of the very expression the checks verify, so the pages
 cannot drift from the code. Verdicts come from the JSON report named by the environment
@@ -233,6 +237,53 @@ def _report_block() -> str:
     return "\n".join(out)
 
 
+_MJCF = re.compile(r"\{\{\s*mjcf:([A-Za-z0-9_./-]+)\s*\}\}")
+
+
+def _mjcf_block(rel: str, root: str) -> str:
+    """Derived equations and engine residuals of one MJCF file (``{{ mjcf:PATH }}``)."""
+    import sympy as sp
+
+    from kane.mjcf import crosscheck_mjcf, from_mjcf
+
+    path = os.path.join(root, rel)
+    if not os.path.isfile(path):
+        raise PluginError(f"{{{{ mjcf:{rel} }}}}: no such file under {root}.")
+    mm = from_mjcf(path)
+    sm = mm.explicit
+    res = crosscheck_mjcf(mm, n_states=20, seed=0)
+
+    def lx(e) -> str:
+        return sp.latex(e)
+
+    with open(path, encoding="utf-8") as f:
+        xml = f.read()
+    out = [f"```xml\n{xml.strip()}\n```", "", "**Coordinates and speeds** (MuJoCo `qpos` / `qvel` order):", "",
+           "| coordinate | speed | dq/dt |", "|---|---|---|"]
+    for qq, uu, qd in zip(sm.q, sm.u, sm.qdot, strict=False):
+        out.append(f"| ${lx(qq)}$ | ${lx(uu)}$ | ${lx(qd)}$ |")
+    out += ["", "**Partial velocities** of each mass centre $V$ and partial angular velocities $W$ "
+            "(column $r$: speed $u_r$; components in the body's own frame):", ""]
+    for name, V, W in mm.partial_velocities:
+        out.append(f"- body `{name}`: $V = {lx(V.applyfunc(sp.trigsimp))}$, $W = {lx(W)}$")
+    out += ["", "**Generalized active forces** $F_r$ (gravity, damping, springs, actuator force symbols):", "",
+            f"$$F_r = {lx(sm.fr)}$$", "", "**Generalized inertia forces** $F^*_r$ (shown after `trigsimp`):", "",
+            f"$$F^*_r = {lx(sm.frstar.applyfunc(sp.trigsimp))}$$", "",
+            "**Mass matrix and forcing**, $M \\dot u = f$:", "",
+            f"$$M = {lx(sm.mass_matrix.applyfunc(sp.trigsimp))}, \\quad f = {lx(sm.forcing)}$$", "",
+            "**Parameters** (MuJoCo's compiled values, SI units):", "", "| symbol | value |", "|---|---|"]
+    for k, v in sorted(mm.system.params.items()):
+        out.append(f"| ${lx(sp.Symbol(k))}$ | {v:.6g} |")
+    keys = [k for k in ("mujoco_mass", "mujoco_bias", "mujoco_actuator", "mujoco_inverse", "pinocchio_crba", "pinocchio_rnea", "kanes_method") if k in res]
+    out += ["", f"**Residuals** on {res['n_states']} random states (largest difference / largest term; tolerance 1e-10):", "",
+            "| compared with | residual |", "|---|---|"]
+    out += [f"| {k.replace('_', ' ')} | {res[k]:.1e} |" for k in keys]
+    timing = mm.timing
+    out += ["", f"Derivation while this page was built: explicit partial velocities {timing.get('explicit', 0):.2f} s, "
+            f"sympy `KanesMethod` {timing.get('kanes_method', 0):.2f} s; Pinocchio read {res.get('pinocchio_source', '-')}.", ""]
+    return "\n".join(out)
+
+
 def on_page_markdown(markdown: str, page, config, files, **kwargs) -> str:
     """Replace the placeholders of one page (see the module docstring)."""
 
@@ -242,4 +293,6 @@ def on_page_markdown(markdown: str, page, config, files, **kwargs) -> str:
             return _report_block()
         return _latex_block(claim_id) if kind == "latex" else _claim_block(claim_id)
 
+    root = os.path.dirname(os.path.abspath(config["config_file_path"]))
+    markdown = _MJCF.sub(lambda m: _mjcf_block(m.group(1), root), markdown)
     return _PLACEHOLDER.sub(fill, markdown)

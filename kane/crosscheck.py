@@ -273,7 +273,7 @@ def eq3_on_trajectory(
     for t in range(len(tr.time)):
         record("kane_on_motion", res[t], _rel(res[t], scale), t)
     if system.derivation == "rolling_disc":
-        from kane.systems import _rot_zxy
+        from kane.systems.rolling_disc import _rot_zxy
 
         R = np.stack([_quat_to_R(x) for x in tr.qpos[:, 3:7]])
         w = np.einsum("tij,tj->ti", R, tr.qvel[:, 3:6])

@@ -11,6 +11,7 @@ import pytest
 import sympy as sp
 
 import kane.systems as ks
+import kane.systems.derive as ks_derive
 from kane.systems import SYSTEMS, get_system, simulate, symbol
 
 TREE_SYSTEMS = [
@@ -221,12 +222,12 @@ def test_get_system_rejects_an_unknown_name_and_lists_valid_ones():
 
 def test_symbolic_cache_returns_same_equations_much_faster(tmp_path, monkeypatch):
     monkeypatch.setenv("MDGS_CACHE_DIR", str(tmp_path))
-    monkeypatch.setattr(ks, "_MEMO", {})
+    monkeypatch.setattr(ks_derive, "_MEMO", {})
     s = get_system("cubli")
     t0 = time.perf_counter()
     cold = s.symbolic()
     t_cold = time.perf_counter() - t0
-    monkeypatch.setattr(ks, "_MEMO", {})
+    monkeypatch.setattr(ks_derive, "_MEMO", {})
     t0 = time.perf_counter()
     warm = s.symbolic()
     t_warm = time.perf_counter() - t0
@@ -239,7 +240,7 @@ def test_symbolic_cache_returns_same_equations_much_faster(tmp_path, monkeypatch
 @pytest.mark.slow
 def test_deriving_all_systems_cold_takes_under_60_seconds(tmp_path, monkeypatch):
     monkeypatch.setenv("MDGS_CACHE_DIR", str(tmp_path))
-    monkeypatch.setattr(ks, "_MEMO", {})
+    monkeypatch.setattr(ks_derive, "_MEMO", {})
     cases = [(n, {}) for n in SYSTEMS if n != "partitioned_box"] + [
         ("partitioned_box", {"k": k}) for k in (1, 2, 8, 27)
     ]

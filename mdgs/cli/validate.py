@@ -179,20 +179,21 @@ def validate(
     seed: int = typer.Option(0, "--seed", help="Seed of the adversarial searches (hypothesis, CasADi multistart)."),
     replay: str | None = typer.Option(None, "--replay", metavar="FILE", help="Re-run one recorded counterexample (a counterexample, a report entry or a whole --json report) and print both sides of its claim."),
     data: str | None = typer.Option(None, "--data", metavar="FILE", help="Check a dataset file against Kane's equations instead of the claims of kane."),
+    mjcf: str | None = typer.Option(None, "--mjcf", metavar="FILE", help="Derive Kane's equations of your MJCF tree and run every claim check that applies to it."),
 ) -> None:
     """Run every check of `kane` on every case it applies to and print a verdict per check.
 
     Exit code 0 when every check holds, 1 when any claim is refuted, 2 for usage errors and checks that could not decide.
     """
     try:
-        code = _validate(quick, check, case, json_path, seed, replay, data)
+        code = _validate(quick, check, case, json_path, seed, replay, data, mjcf)
     except UsageError as e:
         _err(str(e))
         code = EXIT_ERROR
     raise typer.Exit(code)
 
 
-def _validate(quick, check, case, json_path, seed, replay, data) -> int:
+def _validate(quick, check, case, json_path, seed, replay, data, mjcf=None) -> int:
     if replay is not None:
         return _replay(replay, check)
     if json_path is not None and json_path != "-":
@@ -205,11 +206,16 @@ def _validate(quick, check, case, json_path, seed, replay, data) -> int:
         console = Console(stderr=to_stdout, soft_wrap=False, width=max(console.width, 150))
     stderr_console = Console(stderr=True)
     claims = _claims()
-    if data is not None:
-        results: list = _run_data(data, check, case)
+    if mjcf is not None:
+        from validation.mjcf import MjcfError, check_mjcf
+
+        try:
+            rep = check_mjcf(mjcf, check, case, quick, seed, claims)
+        except MjcfError as e:
+            raise UsageError(str(e)) from e
     else:
-        results = _run_kane(check, case, quick, seed, stderr_console)
-    rep = _report.build_report(results, claims)
+        results = _run_data(data, check, case) if data is not None else _run_kane(check, case, quick, seed, stderr_console)
+        rep = _report.build_report(results, claims)
     if not rep["checks"]:
         raise UsageError("No check matches the selection; see `mdgs validate --help` for --check and --case.")
     render_table(rep["checks"], console)
