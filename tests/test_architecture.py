@@ -1,8 +1,9 @@
 """The house rules of ../shared/architecture.md, checked on the source: import arrows point one way.
 
 The module import graph is read from the AST of every module of ``kane``, ``validation`` and
-``mdgs`` (imports inside functions included, since a lazy import is still an arrow), and
-each rule below is a test that names the offending arrow.
+``mdgs`` (imports inside functions included, since a lazy import is still an arrow; imports
+under ``if TYPE_CHECKING:`` left out, since they only name types for annotations), and each
+rule below is a test that names the offending arrow.
 """
 
 from __future__ import annotations
@@ -40,11 +41,24 @@ def _modules() -> dict[str, Path]:
 MODULES = _modules()
 
 
+def _runtime_nodes(tree: ast.AST):
+    """Every node of ``tree`` except those under ``if TYPE_CHECKING:`` (annotations, not imports that run)."""
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        yield node
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.If) and ast.unparse(child.test).endswith("TYPE_CHECKING"):
+                stack.extend(child.orelse)
+                continue
+            stack.append(child)
+
+
 def _imports(name: str, path: Path) -> set[str]:
-    """Every absolute module name ``name`` imports (resolving relative imports)."""
+    """Every absolute module name ``name`` imports at run time (resolving relative imports)."""
     pkg = name if path.name == "__init__.py" else name.rpartition(".")[0]
     out = set()
-    for node in ast.walk(ast.parse(path.read_text())):
+    for node in _runtime_nodes(ast.parse(path.read_text())):
         if isinstance(node, ast.Import):
             out |= {a.name for a in node.names}
         elif isinstance(node, ast.ImportFrom):

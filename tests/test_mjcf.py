@@ -194,7 +194,7 @@ def test_a_file_mujoco_cannot_load_is_refused(tmp_path):
 
 
 def test_mdgs_validate_mjcf_prints_the_verdict_table_and_json(capsys, tmp_path):
-    from validation import cli
+    from mdgs.cli import validate as cli
 
     out_json = tmp_path / "r.json"
     code = cli.main(["validate", "--mjcf", str(EXAMPLES / "cart_pole.xml"), "--quick", "--check", "eq3", "--check", "eq36",
@@ -210,7 +210,7 @@ def test_mdgs_validate_mjcf_prints_the_verdict_table_and_json(capsys, tmp_path):
 
 
 def test_mdgs_validate_mjcf_refuses_a_closed_loop_with_exit_2(capsys, tmp_path):
-    from validation import cli
+    from mdgs.cli import validate as cli
 
     path = tmp_path / "loop.xml"
     path.write_text(
