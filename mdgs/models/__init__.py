@@ -9,13 +9,14 @@ from __future__ import annotations
 from mdgs.models.base import Batch, ModelError, Simulator, State, batch_of, one_step_error
 from mdgs.models.mdgs import MDGS, MDGSNoConstraint, MDGSSingleSpeed
 from mdgs.models.references import ConstantTwist, MuJoCoReference
+from mdgs.models.sgnn import SGNN, SGNNSnap
 
 __all__ = ["MODELS", "LEARNED", "REFERENCES", "Simulator", "State", "Batch", "ModelError", "batch_of", "one_step_error", "get_model"]
 
 #: name -> Simulator class: the one registry the CLI, the trainer, the evaluator and the study read.
 MODELS: dict[str, type[Simulator]] = {
     cls.name: cls for cls in (MDGS, MDGSNoConstraint, MDGSSingleSpeed, ConstantTwist, MuJoCoReference)
-}
+} | {cls.name: cls for cls in (SGNN, SGNNSnap)}
 #: Names of the models that are trained.
 LEARNED = tuple(n for n, c in MODELS.items() if c.learned)
 #: Names of the non-learned references.

@@ -91,14 +91,16 @@ class Simulator(nn.Module):
 
     Class attributes a model sets: ``name`` (its registry key), ``Config`` (a dataclass with
     every default documented), ``learned`` (False for references that have nothing to train),
-    ``summary`` (one line for ``--help`` and tables). Instance attribute ``history``: past frames
-    the model needs besides the current one (0 for one-frame models).
+    ``summary`` (one line for ``--help`` and tables), ``default_lr`` (the learning rate its
+    authors train with; ``mdgs train`` uses it when no ``--lr`` is given). Instance attribute
+    ``history``: past frames the model needs besides the current one (0 for one-frame models).
     """
 
     name: ClassVar[str] = ""
     Config: ClassVar[type] = object
     learned: ClassVar[bool] = True
     summary: ClassVar[str] = ""
+    default_lr: ClassVar[float] = 1e-3
 
     def __init__(self, config: Any):
         super().__init__()
