@@ -31,7 +31,7 @@ def train_cmd(
     epochs: int = typer.Option(20, "--epochs", help="Total epochs (a resumed run stops at this count)."),
     batch_size: int = typer.Option(32, "--batch-size", help="Graphs per step."),
     lr: float = typer.Option(None, "--lr", show_default=False,
-                             help="Learning rate; default: the model's own (MDGS, B.2: Adam 1e-3; GNS: 1e-4)."),
+                             help="Learning rate; default: the model's own (MDGS, B.2: Adam 1e-3; GNS, SGNN: 1e-4)."),
     seed: int = typer.Option(0, "--seed", help="Seed of initialisation, batch order and noise."),
     max_steps: int = typer.Option(0, "--max-steps", help="Cap on steps per epoch (0: full pass)."),
     valid_max_pairs: int = typer.Option(0, "--valid-max-pairs", help="Cap on validation pairs (0: all)."),
@@ -54,6 +54,7 @@ def train_cmd(
             flag = unknown[0] if unknown[0] in ("structure", "bound", "integrator", "noise") else f"--set {unknown[0]}"
             fail(f"model {model!r} has no setting {flag.lstrip('-')}; its settings are {', '.join(sorted(known))}")
         mcfg = cls.Config(**opts)
+        lr = cls.default_lr if lr is None else lr
         cfg = TrainConfig(data=str(data), out=str(out), model_name=model, epochs=epochs, batch_size=batch_size,
                           lr=lr, seed=seed, max_steps=max_steps, valid_max_pairs=valid_max_pairs, device=device,
                           model=mcfg)

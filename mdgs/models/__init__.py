@@ -12,13 +12,14 @@ from mdgs.models.hgns import HGNS
 from mdgs.models.lgns import LGNS
 from mdgs.models.mdgs import MDGS, MDGSNoConstraint, MDGSSingleSpeed
 from mdgs.models.references import ConstantTwist, MuJoCoReference
+from mdgs.models.sgnn import SGNN, SGNNSnap
 
 __all__ = ["MODELS", "LEARNED", "REFERENCES", "Simulator", "State", "Batch", "ModelError", "batch_of", "one_step_error", "get_model"]
 
 #: name -> Simulator class: the one registry the CLI, the trainer, the evaluator and the study read.
 #: Learned models first (the paper's method, its ablations, then the peers), then the references.
 MODELS: dict[str, type[Simulator]] = {
-    cls.name: cls for cls in (MDGS, MDGSNoConstraint, MDGSSingleSpeed, GNS, LGNS, HGNS, ConstantTwist, MuJoCoReference)
+    cls.name: cls for cls in (MDGS, MDGSNoConstraint, MDGSSingleSpeed, GNS, SGNN, SGNNSnap, LGNS, HGNS, ConstantTwist, MuJoCoReference)
 }
 #: Names of the models that are trained.
 LEARNED = tuple(n for n, c in MODELS.items() if c.learned)

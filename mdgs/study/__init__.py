@@ -27,7 +27,7 @@ def report(out: str | os.PathLike, name: str | None = None) -> list[str]:
     out = Path(out)
     if not out.is_dir():
         raise StudyError(f"{out} is not a study folder (it does not exist); run `mdgs study FILE --out {out}` first")
-    lines = read_results(out)
+    lines = read_results(out, usable=True)
     if not lines:
         raise StudyError(f"{out} holds no finished cell yet (no results*.jsonl lines); run the study first")
     if name is None:

@@ -54,7 +54,10 @@ def _points(lines, scene):
             groups.setdefault(ln["label"], []).append(ln)
     pts = {}
     for label, lns in groups.items():
-        errs, failed = [], False
+        errs, failed = [], any(ln.get("status") == "failed" for ln in lns)
+        lns = [ln for ln in lns if ln.get("status", "ok") == "ok"]
+        if not lns:
+            continue
         for ln in lns:
             m, f = _run_mean(ln)
             failed |= f or m is None
@@ -203,6 +206,7 @@ def resolution(lines, path: Path) -> bool:
     plt = _plt()
     model = res[0]["model"]
     use = res + [ln for ln in lines if ln["kind"] == "learned" and ln["model"] == model and ln["label"] == model]
+    use = [ln for ln in use if ln.get("status", "ok") == "ok"]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     for k, scene in enumerate(_scenes(use)):
         by = {}

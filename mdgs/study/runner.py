@@ -41,11 +41,11 @@ from mdgs.evaluate.cost import step_cost
 from mdgs.evaluate.metrics import REPORT_TIMES, frame_of
 from mdgs.evaluate.physics import energy_error, hinge_anchors, joint_separation, rigidity_violation
 from mdgs.evaluate.rollout import divergence_threshold, rollout
-from mdgs.models import MODELS, Simulator, one_step_error
+from mdgs.models import MODELS, ModelError, Simulator, one_step_error
 from mdgs.partition import PartitionParams
 from mdgs.runs import atomic_json, load_run, resolve_device
 from mdgs.study.config import SceneEntry, StudyConfig, StudyError
-from mdgs.train import TrainConfig, train
+from mdgs.train import TrainConfig, TrainingError, train
 
 __all__ = ["Cell", "cells_of", "run_study", "read_results", "RESULTS_VERSION"]
 
@@ -200,13 +200,31 @@ def _fingerprint(folder: Path, split: str) -> str:
 # --------------------------------------------------------------------------- cells
 
 def run_cell(study: StudyConfig, out: Path, cell: Cell, progress: Callable[[dict], None]) -> dict:
-    """Run one cell -> its results line (a dict)."""
+    """Run one cell -> its results line (a dict).
+
+    A cell that cannot run is still a finished cell with a line saying why, never a crash of the
+    study: ``status`` is ``ok``, ``not applicable`` (the model refuses the scene or setting, e.g. a
+    MuJoCo timestep factor that does not divide the data's substeps) or ``failed`` (training
+    diverged: the model counts as failed on every trajectory of the cell).
+    """
     t0 = time.perf_counter()
+    try:
+        return _run_cell(study, out, cell, progress, t0)
+    except ModelError as e:
+        status, reason = "not applicable", str(e)
+    except TrainingError as e:
+        status, reason = "failed", str(e)
+    return {"version": RESULTS_VERSION, "study": study.name, "cell": cell.key(study), **cell.spec(study),
+            "scene": cell.scene.name, "status": status, "reason": reason, "sets": {}, "versions": _versions(),
+            "wall_seconds": time.perf_counter() - t0}
+
+
+def _run_cell(study: StudyConfig, out: Path, cell: Cell, progress, t0: float) -> dict:
     dev = resolve_device(study.device)
     data = _dataset(study, out, cell.scene, cell.refine)
     test = load_split(data / "test.h5")
     line = {"version": RESULTS_VERSION, "study": study.name, "cell": cell.key(study), **cell.spec(study),
-            "scene": cell.scene.name, "data_fingerprint": _fingerprint(data, "test")}
+            "scene": cell.scene.name, "status": "ok", "data_fingerprint": _fingerprint(data, "test")}
     train_info = {}
     if MODELS[cell.model].learned:
         run = out / "runs" / cell.key(study)
@@ -254,8 +272,9 @@ def _results_path(out: Path, share: tuple[int, int]) -> Path:
     return out / ("results.jsonl" if n == 1 else f"results-{i}-of-{n}.jsonl")
 
 
-def read_results(out: str | os.PathLike) -> list[dict]:
-    """Every finished line of every results file in ``out`` (torn last lines ignored), one per cell."""
+def read_results(out: str | os.PathLike, usable: bool = False) -> list[dict]:
+    """Every finished line of every results file in ``out`` (torn last lines ignored), one per cell;
+    ``usable``: only the cells that ran (``status`` ok) or failed (they count as failed rows)."""
     out = Path(out)
     lines, seen = [], set()
     for p in sorted(out.glob("results*.jsonl")):
@@ -267,6 +286,8 @@ def read_results(out: str | os.PathLike) -> list[dict]:
             if rec.get("cell") not in seen:
                 seen.add(rec.get("cell"))
                 lines.append(rec)
+    if usable:
+        lines = [ln for ln in lines if ln.get("status", "ok") in ("ok", "failed")]
     return lines
 
 

@@ -87,6 +87,9 @@ def _cell(lns: list[dict], set_name: str, t: int):
     """(mean over seeds, std over seeds, trajectories ok (summed), trajectories (summed)) of one table cell."""
     means, ok, tot = [], 0, 0
     for ln in lns:
+        if ln.get("status") == "failed":  # training diverged: failed on every trajectory
+            means.append(None)
+            continue
         s = ln["sets"].get(set_name)
         if s is None:
             continue
@@ -110,6 +113,9 @@ def _ratio_cell(lns, refs, set_name, t):
     rv = ref["sets"][set_name][f"pos_mse_t{t}"]
     ratios = []
     for ln in lns:
+        if ln.get("status") == "failed":
+            ratios.append(None)
+            continue
         s = ln["sets"].get(set_name)
         if s is None:
             continue
@@ -263,7 +269,7 @@ def _group(lines, pred):
 
 def _speed_table(lines) -> Table | None:
     rows = []
-    for lns in _group(lines, lambda ln: ln["kind"] in ("learned", "reference")):
+    for lns in _group(lines, lambda ln: ln["kind"] in ("learned", "reference") and ln.get("status", "ok") == "ok"):
         ln = lns[0]
         single = np.median([x["cost"]["single"]["ms_per_frame"] for x in lns])
         batched = np.median([x["cost"]["batched"]["ms_per_trajectory_frame"] for x in lns])
@@ -286,7 +292,7 @@ def _resolution_table(lines) -> Table | None:
     base = [ln for ln in lines if ln["kind"] == "learned" and ln["model"] == res[0]["model"]
             and ln["settings"] == {} and ln["label"] == res[0]["model"]]
     rows = []
-    for lns in _group(base + res, lambda ln: True):
+    for lns in _group(base + res, lambda ln: ln.get("status", "ok") == "ok"):
         ln = lns[0]
         refine = ln.get("refine", 1)
         c40, c110 = _cell(lns, "test", 40), _cell(lns, "test", 110)
