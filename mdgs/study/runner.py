@@ -82,7 +82,9 @@ class Cell:
 
 
 def cells_of(study: StudyConfig) -> list[Cell]:
-    """The study's cells in run order: references first (cheap), then learned cells seed-major."""
+    """The study's cells in run order: references first (cheap), then the learned cells model by model
+    (in the study file's order: put cheap models first), each over all seeds and scenes, so a study
+    stopped early has complete rows (every seed) for the models it reached."""
     out = []
     for sc in study.scenes:
         out.append(Cell("reference", sc, "constant-twist", "constant twist"))
@@ -92,9 +94,9 @@ def cells_of(study: StudyConfig) -> list[Cell]:
             for s in study.sensitivity_seeds:
                 out.append(Cell("sensitivity", sc, "mujoco", "sensitivity floor",
                                 (("dt_factor", 1), ("noise_seed", s), ("velocity_noise", study.sensitivity)), seed=s))
-    for seed in study.seeds:
-        for sc in study.scenes:
-            for m in study.models:
+    for m in study.models:
+        for seed in study.seeds:
+            for sc in study.scenes:
                 out.append(Cell("learned", sc, m.name, m.label, m.settings, seed))
     for r in study.resolution_refine:
         for seed in study.resolution_seeds:
