@@ -1,0 +1,122 @@
+"""Every model of the registry side by side on one scene: size, training step, rollout step, FLOP rate.
+
+    python benchmarks/bench_models.py [--scene cubli-triple] [--models mdgs gns ...] [--batches 1 16 256]
+
+One run, this machine, medians over repeats; printed per model:
+
+- parameters;
+- ms per training step (perturb + losses + backward + optimiser step) at ``--train-batch``;
+- ms per simulated frame of one trajectory, and per trajectory-frame at each batch size
+  (:func:`mdgs.evaluate.cost.step_cost`, the same code the study's speed-accuracy chart uses);
+- for the learned models, the achieved FLOP rate of the largest batched step (FLOPs counted by
+  ``torch.utils.flop_counter.FlopCounterMode``) as a fraction of a dense float32 matmul measured
+  in the same run;
+- MuJoCo (the ``mujoco`` reference) at the data's timestep and at one step per frame, on the
+  same scale.
+
+The data is a ``tiny`` dataset of the scene written to a temporary folder. Untrained weights:
+the cost of a step does not depend on training.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.flop_counter import FlopCounterMode
+
+from mdgs.data.generate import GenerateConfig, generate
+from mdgs.data.split import load_split
+from mdgs.evaluate.cost import step_cost
+from mdgs.models import MODELS, batch_of
+
+
+def _median(fn, repeats: int, warmup: int = 2) -> float:
+    for _ in range(warmup):
+        fn()
+    ts = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return statistics.median(ts)
+
+
+def _matmul_rate(repeats: int = 20) -> float:
+    a, b = torch.randn(8192, 200), torch.randn(200, 200)
+    return 2.0 * 8192 * 200 * 200 / _median(lambda: a @ b, repeats)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scene", default="cubli-triple")
+    ap.add_argument("--models", nargs="*", default=None, help="registry names (default: all)")
+    ap.add_argument("--batches", nargs="*", type=int, default=[1, 16, 256])
+    ap.add_argument("--train-batch", type=int, default=32)
+    ap.add_argument("--frames", type=int, default=10, help="timed frames per rollout measurement")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--threads", type=int, default=1)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    names = args.models or list(MODELS)
+    with tempfile.TemporaryDirectory() as tmp:
+        generate(GenerateConfig(scene=args.scene, out=tmp, preset="tiny"))
+        tr, te = load_split(Path(tmp) / "train.h5"), load_split(Path(tmp) / "test.h5")
+    rate = _matmul_rate()
+    print(f"scene {args.scene}: {tr.x.shape[2]} nodes, frame {tr.frame_dt * 1e3:.0f} ms, torch threads "
+          f"{args.threads}; dense matmul [8192x200]@[200x200] {rate / 1e9:.1f} GFLOP/s")
+    head = f"{'model':22s}{'params':>10s}{'train ms':>10s}" + "".join(f"{'ms/tf b' + str(b):>12s}" for b in args.batches)
+    print(head + f"{'% matmul':>10s}")
+    rows = []
+    for name in names:
+        cls = MODELS[name]
+        cfgs = [("", {})] if name != "mujoco" else [(" dt x1", {"dt_factor": 1}),
+                                                    (f" dt x{int(tr.attrs['substeps'])}",
+                                                     {"dt_factor": int(tr.attrs["substeps"])})]
+        for suffix, kw in cfgs:
+            try:
+                model = cls.from_data(tr, cls.Config(**kw))
+            except Exception as e:  # noqa: BLE001 - a model that refuses the scene says so and the table goes on
+                print(f"{name + suffix:22s} refused: {e}")
+                continue
+            train_ms = "-"
+            if cls.learned:
+                opt, _, _ = model.optimizer(cls.default_lr)
+                pairs = tr.pairs(model.history)
+                idx = pairs[np.linspace(0, len(pairs) - 1, args.train_batch).astype(int)]
+                gen = torch.Generator().manual_seed(0)
+
+                def train_step(model=model, opt=opt, idx=idx, gen=gen):
+                    b = model.perturb(batch_of(tr, idx, model.device, model.history), gen)
+                    loss = sum(w * model.losses(b)[k] for k, w in model.loss_weights().items())
+                    opt.zero_grad()
+                    loss.backward()
+                    opt.step()
+                model.train()
+                train_ms = f"{1e3 * _median(train_step, args.repeats, 1):.1f}"
+            costs = [step_cost(model, te, batch=b, frames=args.frames, repeats=args.repeats) for b in args.batches]
+            frac = "-"
+            if cls.learned:
+                big = args.batches[-1]
+                model.bind(te)
+                st = model.initial_state(te, np.arange(big) % te.x.shape[0], model.history)
+                ctrl = torch.from_numpy(te.ctrl[np.arange(big) % te.x.shape[0], model.history])
+                with torch.no_grad(), FlopCounterMode(display=False) as fc:
+                    model.step(st, ctrl)
+                flops = fc.get_total_flops()
+                frac = f"{100 * flops / (costs[-1]['ms_per_frame'] * 1e-3) / rate:.0f}"
+            line = (f"{name + suffix:22s}{model.parameter_count():>10d}{train_ms:>10s}"
+                    + "".join(f"{c['ms_per_trajectory_frame']:>12.3f}" for c in costs) + f"{frac:>10s}")
+            print(line, flush=True)
+            rows.append(line)
+    print("ms/tf bN: milliseconds per trajectory-frame of a rollout step at batch N (batch 1: one trajectory); "
+          "% matmul: FLOP rate of the largest batch against the dense matmul above")
+
+
+if __name__ == "__main__":
+    main()
