@@ -176,3 +176,31 @@ def test_every_scene_generates_tiny_and_its_claims_hold(name, tmp_path):
                 "eq11.corrected",
             ):  # loads vs MuJoCo's accelerations, nine digits
                 assert r["verdict"] == "holds", r
+
+
+def test_shards_on_two_machines_sharing_only_the_output_folder(tmp_path, monkeypatch):
+    """Two shards on two hosts (MDGS_HOST stands for the machine's name) that share only the folder:
+    neither judges the other's temporaries by process id, and the merged files equal one process's."""
+    import subprocess
+    import sys
+
+    import h5py
+    import numpy as np
+
+    single, shared = tmp_path / "single", tmp_path / "shared"
+    generate(GenerateConfig(scene="cubli-single", out=str(single), preset="tiny"))
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()  # a process id that no longer exists here
+    shared.mkdir()
+    foreign = shared / f".valid.h5.tmp{dead.pid}-machine-b"  # machine b's writer, alive on machine b
+    foreign.write_bytes(b"in progress on another machine")
+    monkeypatch.setenv("MDGS_HOST", "machine-a")
+    r0 = generate(GenerateConfig(scene="cubli-single", out=str(shared), preset="tiny", shard=(0, 2)))
+    assert not r0.merged and foreign.exists()  # machine a leaves machine b's temporary alone
+    monkeypatch.setenv("MDGS_HOST", "machine-b")  # on machine b that writer has died: its rerun cleans up
+    r1 = generate(GenerateConfig(scene="cubli-single", out=str(shared), preset="tiny", shard=(1, 2)))
+    assert r1.merged and not foreign.exists()
+    for split in ("train", "valid", "test"):
+        with h5py.File(single / f"{split}.h5") as a, h5py.File(shared / f"{split}.h5") as b:
+            for name in a["frames"]:
+                np.testing.assert_array_equal(a["frames"][name][()], b["frames"][name][()], err_msg=name)

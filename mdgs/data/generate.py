@@ -11,8 +11,9 @@ order, into ``OUT/{split}.h5`` (atomically; chunks are copied verbatim) and remo
 parts. ``OUT/generate.json`` holds the resolved configuration; its hash is stamped on
 every file, and a run with different settings refuses to mix its output with it.
 
-A run first deletes the temporaries that killed runs left behind (``.NAME.tmpPID`` of
-processes that no longer exist). MuJoCo's warnings never land in ``MUJOCO_LOG.TXT``:
+A run first deletes the temporaries that killed runs left behind (``.NAME.tmpPID-HOST`` of
+processes of this host that no longer exist; shards on other machines sharing the folder
+keep theirs, :func:`mdgs.data.io.host_tag`). MuJoCo's warnings never land in ``MUJOCO_LOG.TXT``:
 those of loading the model are passed to ``on_warning`` (stderr by default) and stored
 in the files' ``mujoco_warnings``; a warning while simulating (an unstable model, a full
 constraint arena) stops the run before anything is written

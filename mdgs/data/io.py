@@ -67,7 +67,7 @@ def sha256_text(text: str) -> str:
 def atomic_path(path: Path) -> Iterator[Path]:
     """Yield a temporary sibling of ``path``; rename it onto ``path`` if the block succeeds."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}-{host_tag()}")
     try:
         yield tmp
         os.replace(tmp, path)
@@ -76,7 +76,20 @@ def atomic_path(path: Path) -> Iterator[Path]:
             tmp.unlink()
 
 
-_TMP = re.compile(r"^\..+\.tmp(\d+)$")
+_TMP = re.compile(r"^\..+\.tmp(\d+)(?:-([-A-Za-z0-9_.]+))?$")
+
+
+def host_tag() -> str:
+    """This machine's name as it appears in temporary file names (``$MDGS_HOST`` overrides it).
+
+    Shards of one dataset may run on several machines that share only the output folder (a
+    network file system): a process id means something only on the machine that issued it, so
+    every temporary carries its writer's host, and only that host ever judges it stale.
+    """
+    import socket
+
+    name = os.environ.get("MDGS_HOST") or socket.gethostname() or "host"
+    return re.sub(r"[^-A-Za-z0-9_.]", "_", name)
 
 
 def _alive(pid: int) -> bool:
@@ -93,17 +106,21 @@ def _alive(pid: int) -> bool:
 def remove_stale_temporaries(folder: Path) -> list[Path]:
     """Delete the temporaries of :func:`atomic_path` under ``folder`` whose writer is dead.
 
-    A killed run leaves ``.NAME.tmpPID`` behind (its rename never happened); a rerun
-    removes those of processes that no longer exist and keeps those of live ones (another
-    worker or shard may be writing). Returns the removed paths.
+    A killed run leaves ``.NAME.tmpPID-HOST`` behind (its rename never happened); a rerun
+    removes those written on this host by processes that no longer exist, and keeps those of
+    live processes and of other hosts (another worker or shard may be writing; see
+    :func:`host_tag`). Returns the removed paths.
     """
     gone = []
     folder = Path(folder)
     if not folder.is_dir():
         return gone
+    me = host_tag()
     for f in folder.rglob(".*.tmp*"):
         m = _TMP.match(f.name)
-        if m and f.is_file() and int(m.group(1)) != os.getpid() and not _alive(int(m.group(1))):
+        if not m or (m.group(2) or me) != me:  # another machine's temporary: not ours to judge
+            continue
+        if f.is_file() and int(m.group(1)) != os.getpid() and not _alive(int(m.group(1))):
             f.unlink(missing_ok=True)
             gone.append(f)
     return gone
