@@ -238,3 +238,34 @@ def test_bad_data_exits_2(data, tmp_path, bad):
     assert {"missing": "does not exist", "corrupt": "not a readable HDF5", "nan": "NaN"}[
         bad
     ] in res.output
+
+
+NO_ACTUATORS = """<mujoco model="no-actuators">
+  <option timestep="0.002"/>
+  <worldbody>
+    <geom type="plane" size="2 2 0.1"/>
+    <body name="arm" pos="0 0 1">
+      <joint name="h" type="hinge" axis="0 1 0"/>
+      <geom type="box" size="0.3 0.05 0.05" pos="0.3 0 0" density="500" contype="0" conaffinity="0"/>
+    </body>
+    <body name="box" pos="0.8 0 0.5">
+      <freejoint/>
+      <geom type="box" size="0.05 0.05 0.05" density="500"/>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+@pytest.mark.parametrize("model", ["mdgs", "gns"])
+def test_user_mjcf_without_actuators_trains_and_evaluates(tmp_path, model):
+    """Issue 15, item 1: a user scene with no actuator used to crash fitting (reshape(-1, 0))."""
+    xml = tmp_path / "scene.xml"
+    xml.write_text(NO_ACTUATORS)
+    data = tmp_path / "d"
+    generate(GenerateConfig(scene="", mjcf=str(xml), out=str(data), preset="tiny"))
+    res = runner.invoke(app, ["train", "--data", str(data), "--out", str(tmp_path / "r"), "--model", model,
+                              "--epochs", "1", "--max-steps", "2", "--batch-size", "4", "--device", "cpu"])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["evaluate", str(tmp_path / "r"), "--data", str(data), "--device", "cpu"])
+    assert res.exit_code == 0 and "position MSE" in res.output, res.output

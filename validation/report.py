@@ -33,7 +33,6 @@ import math
 import os
 import platform
 import sys
-import tempfile
 from collections.abc import Iterable, Mapping
 from importlib import metadata
 from pathlib import Path
@@ -254,7 +253,8 @@ def build_report(results: Iterable[Any], claims: Mapping[str, Any] | None = None
 
 
 def write_json(report: Mapping, path: str | os.PathLike) -> None:
-    """Write ``report`` as JSON to ``path`` atomically (temp file + ``os.replace``); ``-`` is stdout.
+    """Write ``report`` as JSON to ``path`` atomically (the project's one writer,
+    :func:`mdgs.data.io.atomic_path`); ``-`` is stdout.
 
     Raises
     ------
@@ -266,21 +266,10 @@ def write_json(report: Mapping, path: str | os.PathLike) -> None:
         sys.stdout.write(text)
         sys.stdout.flush()
         return
-    path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    from mdgs.data.io import atomic_path
+
+    with atomic_path(Path(path)) as tmp:
+        tmp.write_text(text, encoding="utf-8")
 
 
 def format_number(x: float | None) -> str:

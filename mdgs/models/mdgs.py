@@ -269,9 +269,9 @@ class MDGS(Simulator):
         """Mean and std of the raw node features z over 256 random training frames."""
         n = d.x.shape[0] * d.x.shape[1]
         idx = np.random.default_rng(0).choice(n, size=min(256, n), replace=False)
-        x = torch.tensor(d.x.reshape(-1, *d.x.shape[2:])[idx])
-        v = torch.tensor(d.v.reshape(-1, *d.v.shape[2:])[idx])
-        c = torch.tensor(d.control.reshape(-1, *d.control.shape[2:])[idx])
+        x = torch.tensor(d.x.reshape(n, *d.x.shape[2:])[idx])
+        v = torch.tensor(d.v.reshape(n, *d.v.shape[2:])[idx])
+        c = torch.tensor(d.control.reshape(n, *d.control.shape[2:])[idx])  # n, not -1: nu may be 0
         scene = SceneGraph.from_static(d.static, has_contact=d.has_contact)
         z = self.node_features(scene, x, v, c).reshape(-1, self.d_z)
         self.set_normalization(z.mean(0), z.std(0))
