@@ -55,3 +55,17 @@ def test_batch_not_divisible_by_processes_is_refused(data, tmp_path):
                          capture_output=True, text=True, timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
     assert res.returncode != 0 and "not divisible by the 2 processes" in res.stderr
     assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("model", ["gns", "lgns"])
+def test_peers_train_under_torchrun(data, tmp_path, model):
+    """Every model of the registry trains under DDP: GNS (5-frame history, per-step schedule) and
+    LGNS (autodiff inside the loss, parameters unused on contact-free batches) as the hard cases."""
+    res = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+                          "-m", "mdgs.cli", "train", "--data", str(data), "--out", str(tmp_path / "r"), "--model", model,
+                          "--epochs", "1", "--max-steps", "2", "--batch-size", "4", "--device", "cpu",
+                          "--valid-max-pairs", "4"],
+                         capture_output=True, text=True, timeout=900, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert res.returncode == 0, res.stderr[-2000:]
+    state = torch.load(tmp_path / "r" / "checkpoint.pt", weights_only=False)
+    assert state["model_name"] == model and state["config"]["processes"] == 2

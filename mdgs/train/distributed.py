@@ -60,7 +60,9 @@ class Dist:
         if not self.enabled:
             return module
         ids = [device.index or 0] if device.type == "cuda" else None
-        return nn.parallel.DistributedDataParallel(module, device_ids=ids)
+        # some models leave parameters out of a batch's loss (e.g. a contact network when no
+        # contact happens in it): DDP must not wait for their gradients
+        return nn.parallel.DistributedDataParallel(module, device_ids=ids, find_unused_parameters=True)
 
 
 def setup(device: str) -> tuple[Dist, str]:
