@@ -177,17 +177,22 @@ class MuJoCoReference(Simulator):
         return State(torch.from_numpy(xs).to(dev, dt), torch.from_numpy(vs).to(dev, dt),
                      {k: torch.from_numpy(a).to(dev) for k, a in out.items()})
 
-    def timed_steps(self, split: SplitData, traj: int, frames: int) -> float:
-        """Wall seconds of ``frames`` frames of MuJoCo stepping alone (no node mapping) from a recorded state."""
-        import time
+    def cost_step(self, state: State, ctrl: torch.Tensor) -> State:
+        """What a frame costs MuJoCo: its integrator steps for every row, from the state in ``state``.
 
-        m, d = self._model, self._data
-        mujoco.mj_resetData(m, d)
-        d.qpos[:], d.qvel[:] = split.qpos[traj, 0], split.qvel[traj, 0]
-        t0 = time.perf_counter()
-        for f in range(frames):
+        The mapping of MuJoCo's state to element nodes (:meth:`step`) serves only the comparison
+        with the data, so the cost axis (:func:`mdgs.evaluate.cost.step_cost`) times this instead.
+        Returns ``state`` unchanged (the rows' MjData hold the stepped state).
+        """
+        m = self._model
+        qpos, qvel = state.extra["qpos"].cpu().numpy(), state.extra["qvel"].cpu().numpy()
+        c = ctrl.detach().cpu().numpy().astype(np.float64)
+        if len(self._rows) != len(qpos):
+            self._rows = [mujoco.MjData(m) for _ in range(len(qpos))]
+        for i, d in enumerate(self._rows):
+            d.qpos[:], d.qvel[:] = qpos[i], qvel[i]
             if m.nu:
-                d.ctrl[:] = split.ctrl[traj, f % split.ctrl.shape[1]]
+                d.ctrl[:] = c[i]
             for _ in range(self._steps):
                 mujoco.mj_step(m, d)
-        return time.perf_counter() - t0
+        return state

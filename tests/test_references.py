@@ -1,0 +1,69 @@
+"""The non-learned references: constant twist and MuJoCo replaying the data at a coarser timestep."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from mdgs.data.generate import GenerateConfig, generate
+from mdgs.data.split import load_split
+from mdgs.evaluate.cost import step_cost
+from mdgs.evaluate.rollout import rollout
+from mdgs.models import MODELS, ModelError
+
+
+@pytest.fixture(scope="module")
+def test_split(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cubli")
+    generate(GenerateConfig(scene="cubli-triple", out=str(out), preset="tiny"))
+    return load_split(out / "test.h5")
+
+
+def _mujoco(d, **kw):
+    cls = MODELS["mujoco"]
+    return cls.from_data(d, cls.Config(**kw))
+
+
+def test_mujoco_at_the_data_timestep_replays_the_data(test_split):
+    # same model, same initial state, same controls: only the solver's warm start of frame 0 is
+    # not recorded, so contact forces differ at round-off; 1e-9 m^2 is far below any model error
+    r = rollout(_mujoco(test_split, dt_factor=1), test_split)
+    assert np.nanmax(r.pos_mse) < 1e-9 and (r.diverged_at < 0).all()
+
+
+def test_coarser_mujoco_is_less_accurate_but_finite(test_split):
+    fine = rollout(_mujoco(test_split, dt_factor=1), test_split).pos_mse[:, 39].mean()
+    coarse = rollout(_mujoco(test_split, dt_factor=20), test_split).pos_mse[:, 39].mean()
+    assert np.isfinite(coarse) and coarse > 100 * max(fine, 1e-16)
+
+
+def test_dt_factor_must_divide_the_substeps(test_split):
+    sub = int(test_split.attrs["substeps"])
+    bad = next(k for k in range(2, 3 * sub) if sub % k)
+    with pytest.raises(ModelError, match="does not divide"):
+        _mujoco(test_split, dt_factor=bad)
+
+
+def test_velocity_noise_moves_initial_velocities_only(test_split):
+    idx = np.arange(test_split.x.shape[0])
+    clean = _mujoco(test_split).initial_state(test_split, idx, 0)
+    noisy = _mujoco(test_split, velocity_noise=1e-3, noise_seed=1).initial_state(test_split, idx, 0)
+    dq = (noisy.extra["qvel"] - clean.extra["qvel"]).abs()
+    rel = dq / clean.extra["qvel"].abs().clamp_min(1e-12)
+    assert 0 < float(rel.max()) < 1e-2 and torch.equal(noisy.extra["qpos"], clean.extra["qpos"])
+    assert torch.allclose(noisy.x, clean.x, atol=1e-6)  # positions are those of the same qpos
+
+
+def test_mujoco_cost_counts_its_steps_not_the_node_mapping(test_split, monkeypatch):
+    model = _mujoco(test_split, dt_factor=int(test_split.attrs["substeps"]))
+    monkeypatch.setattr(type(model), "_nodes", lambda self, d: (_ for _ in ()).throw(AssertionError("mapped")))
+    c = step_cost(model, test_split, batch=1, frames=5, repeats=1)
+    assert c["ms_per_frame"] > 0
+
+
+def test_constant_twist_has_nothing_to_train(test_split):
+    ref = MODELS["constant-twist"].from_data(test_split)
+    assert not ref.learned and ref.parameter_count() == 0
+    with pytest.raises(NotImplementedError):
+        ref.losses(None)
