@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -24,10 +25,18 @@ from typing import Any
 import numpy as np
 import torch
 
+from mdgs.data.io import output_problem
 from mdgs.data.schema import DatasetError
 from mdgs.data.split import SplitData, load_splits
 from mdgs.models import ModelError, batch_of, get_model, one_step_error
-from mdgs.runs import RunError, atomic_json, read_checkpoint, resolve_device, write_checkpoint
+from mdgs.runs import (
+    RunError,
+    atomic_json,
+    folder_lock,
+    read_checkpoint,
+    resolve_device,
+    write_checkpoint,
+)
 from mdgs.train.distributed import setup, teardown
 
 __all__ = ["TrainConfig", "TrainingError", "train"]
@@ -126,10 +135,16 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, spli
                          f"evaluate it directly with `mdgs evaluate --model {cfg.model_name} --data DIR`")
     if cfg.lr is None:
         cfg = replace(cfg, lr=cls.default_lr)
+    problem = output_problem(cfg.out, "--out")
+    if problem:  # before reading any data: a run that cannot be written fails at once
+        raise RunError(problem)
     tr, va = _load_splits(cfg, splits)
     dist_, device = setup(cfg.device)
     try:
-        return _train(cfg, progress, tr, va, cls, dist_, resolve_device(device))
+        dev = resolve_device(device)
+        # rank 0 writes the run folder; it holds the folder's lock, so no other process writes it too
+        with folder_lock(cfg.out, f"mdgs train ({cfg.model_name})") if dist_.is_main else nullcontext():
+            return _train(cfg, progress, tr, va, cls, dist_, dev)
     finally:
         teardown(dist_)
 
