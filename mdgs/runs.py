@@ -237,5 +237,9 @@ def check_run_folder(run: str | os.PathLike) -> Path:
 
 def load_run(run: str | os.PathLike, dev) -> tuple:
     """Load ``<run>/checkpoint.pt`` -> (model on ``dev`` in eval mode, checkpoint dict)."""
-    state = read_checkpoint(check_run_folder(run), dev)
-    return load_model(state, dev), state
+    path = check_run_folder(run)
+    state = read_checkpoint(path, dev)
+    try:
+        return load_model(state, dev), state
+    except RunError as e:  # name the file: several runs may be evaluated at once
+        raise RunError(f"{path}: {e}") from None

@@ -70,7 +70,7 @@ def _root(
     debug: bool = typer.Option(False, "--debug", help="On an internal error (exit 3), also print the traceback."),
 ) -> None:
     """MDGS: Kane-constrained GNN rigid-body simulator and the checks of its theory."""
-    _STATE["debug"] = debug
+    _STATE["debug"] = debug or _STATE["debug"]
 
 
 def _is_user_error(e: BaseException) -> bool:
@@ -143,7 +143,7 @@ def _exception_exit(e: Exception, prog_name: str) -> int:
 
 def fail(msg: str) -> None:
     """A user error: one sentence on stderr, exit code 2, no traceback."""
-    typer.echo(f"error: {msg.rstrip('.')}.", err=True)
+    typer.echo(f"error: {_one_line(msg)}.", err=True)
     raise typer.Exit(EXIT_ERROR)
 
 

@@ -198,6 +198,8 @@ def validate(
 
 
 def _validate(quick, check, case, json_path, seed, replay, data, mjcf=None) -> int:
+    if not 0 <= seed < 2**32:  # numpy's and CasADi's seeds
+        raise UsageError(f"--seed {seed} must be an integer from 0 to 2**32 - 1.")
     if replay is not None:
         return _replay(replay, check)
     if json_path is not None and json_path != "-":

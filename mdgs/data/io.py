@@ -349,7 +349,7 @@ class Dataset:
             raise DatasetError(
                 f"{self.path}: no array '{name}' in /frames; known: {', '.join(self._f['frames'])}"
             ) from None
-        except OSError as e:
+        except (OSError, RuntimeError) as e:
             raise DatasetError(f"{self.path} is corrupted ({_short(e)}); {_REGEN}") from None
 
     def close(self) -> None:
@@ -400,8 +400,8 @@ def open_dataset(
     except DatasetError:
         f.close()
         raise
-    except (OSError, KeyError, ValueError, TypeError) as e:
-        f.close()
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError) as e:  # h5py: RuntimeError for a bad
+        f.close()  # metadata checksum
         raise DatasetError(f"{path} is corrupted ({_short(e)}); {_REGEN}") from None
 
 

@@ -99,8 +99,8 @@ class TrainConfig:
                 raise RunError(f"--{name.replace('_', '-')} {val} must be an integer of at least {lo}")
         if self.lr is not None and not (isinstance(self.lr, float | int) and np.isfinite(self.lr) and self.lr > 0):
             raise RunError(f"--lr {self.lr} must be a positive number")
-        if self.seed < 0:
-            raise RunError(f"--seed {self.seed} must be at least 0")
+        if not isinstance(self.seed, int) or not 0 <= self.seed < 2**63:
+            raise RunError(f"--seed {self.seed} must be an integer from 0 to 2**63 - 1")
 
 
 def _fingerprint(cfg: TrainConfig, model_cfg: dict) -> dict:
@@ -167,6 +167,9 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
         if state["format"] < 2:
             raise RunError(f"{ckpt_path} was written by an mdgs version before the model registry and cannot be "
                            "resumed; it still evaluates with `mdgs evaluate`; choose another --out to train anew")
+        if state["model_name"] != cls.name:
+            raise RunError(f"{out} holds a run of model {state['model_name']!r}, not {cls.name!r}; rerun with "
+                           f"--model {state['model_name']}, choose another --out, or delete {ckpt_path}")
         if state["data_identity"]["mjcf_sha256"] != tr.identity()["mjcf_sha256"]:
             raise RunError(f"{out} holds a run trained on scene {state['data_identity']['scene']!r}, not on "
                            f"{tr.identity()['scene']!r} from {cfg.data}; choose another --out or delete {ckpt_path}")
