@@ -533,3 +533,99 @@ def test_a_failing_write_is_one_sentence_and_leaves_no_temporary(world, command)
         line = refused(args, [str(folder)], [])
     assert "No space left on device" in line
     assert _snapshot(folder) == before
+
+
+# --------------------------------------------------------------------------- the issue's own cases
+
+
+@pytest.mark.parametrize("args", [
+    ["generate", "cubli-single", "--seed", "-1"],
+    ["generate", "cubli-single", "--substeps", "0"],
+    ["train", "--max-steps", "-1"],
+    ["train", "--valid-max-pairs", "-1"],
+])
+def test_issue_bad_flags_leave_no_file(world, args):
+    """Issue 15, items 5 and 6: ``generate --seed -1`` left ``generate.json`` (which then blocked the
+    corrected command); ``train --valid-max-pairs -1`` left ``config.json``."""
+    out = _fresh(world, "issue-")
+    flag = args[-2]
+    if args[0] == "train":
+        args = [*args, "--data", world.data, "--device", "cpu"]
+    refused([*args, "--out", out], flag, [out])
+    assert not out.exists()
+
+
+def test_internal_error_is_exit_3_in_one_line_with_the_traceback_only_under_debug(world):
+    def boom(*a, **kw):
+        raise ZeroDivisionError("a bug")
+
+    args = ["evaluate", world.run, "--data", world.data, "--device", "cpu"]
+    with mock.patch("mdgs.evaluate.evaluate", boom):
+        code, out, err = _cli(args)
+        assert code == 3 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+        assert "internal error" in err and "ZeroDivisionError: a bug" in err and "--debug" in err
+        code, out, err = _cli(["--debug", *args])
+    assert code == 3 and "Traceback" in err and 'raise ZeroDivisionError("a bug")' in err, err
+
+
+def test_ctrl_c_during_generate_says_how_to_resume(world):
+    """Issue 15, item 9: Ctrl-C during generate ended without a word."""
+    out = _fresh(world, "int-")
+
+    def interrupted(cfg, progress=None, **kw):
+        raise KeyboardInterrupt
+
+    with mock.patch("mdgs.data.generate.generate", interrupted):
+        code, _, err = _cli(["generate", "--mjcf", world.xml, "--out", out])
+    assert code == 130 and "interrupted; rerun the same command to resume" in err and str(out) in err, err
+
+
+def test_messages_name_what_a_path_is_instead_of_saying_it_does_not_exist(world):
+    """Issue 15, item 9: a path of the wrong kind was reported as missing."""
+    lines = [refused(["generate", "--mjcf", world.data, "--out", _fresh(world, "k")], str(world.data), []),
+             refused(["validate", "--data", world.data], str(world.data), []),
+             refused(["validate", "--replay", world.data], str(world.data), []),
+             refused(["validate", "--mjcf", world.data], str(world.data), []),
+             refused(["study", "--report", world.xml], str(world.xml), []),
+             refused(["evaluate", world.xml, "--data", world.data], str(world.xml), [])]
+    for line in lines:
+        assert "does not exist" not in line and "no such file" not in line, line
+        assert "is a folder" in line or "is a file" in line, line
+
+
+def test_interrupted_run_and_finished_run_messages(world):
+    """Issue 15, item 9: an interrupted run folder (config.json, no checkpoint yet) says to rerun its
+    train command; a run with more finished epochs than --epochs says how many it holds."""
+    run = _fresh(world, "interrupted-")
+    shutil.copytree(world.run, run)
+    (run / "checkpoint.pt").unlink()
+    line = refused(["evaluate", run, "--data", world.data, "--device", "cpu"], str(run), [run])
+    assert "interrupted" in line and "rerun" in line and "mdgs train" in line, line
+    run = _fresh(world, "longer-")
+    shutil.copytree(world.run, run)
+    same = ["train", "--data", world.data, "--out", run, "--device", "cpu", "--batch-size", "2", "--max-steps", "1",
+            "--valid-max-pairs", "2"]
+    assert _cli([*same, "--epochs", "2"])[0] == 0
+    code, out, err = _cli([*same, "--epochs", "1"])
+    assert code == 0 and "already holds 2 finished epochs (--epochs 1)" in out, out + err
+
+
+@pytest.mark.parametrize("command", ["train", "study"])
+def test_a_folder_in_use_is_refused_and_left_alone(world, command):
+    """Two processes never write one folder: a lock held by a live process (here: this test's
+    parent) refuses the second command with one sentence, the folder untouched."""
+    from mdgs.data.io import host_tag
+    from mdgs.runs import LOCK_NAME
+
+    folder = _fresh(world, "locked-")
+    if command == "train":
+        shutil.copytree(world.run, folder)
+        args = ["train", "--data", world.data, "--out", folder, "--device", "cpu", "--batch-size", "2",
+                "--max-steps", "1", "--valid-max-pairs", "2", "--epochs", "2"]
+    else:
+        folder.mkdir()
+        (folder / "study.json").write_text(json.dumps({"name": "tiny"}))
+        args = ["study", ROOT / "studies" / "tiny.toml", "--out", folder]
+    (folder / LOCK_NAME).write_text(json.dumps({"host": host_tag(), "pid": os.getppid(), "command": "mdgs train"}))
+    line = refused(args, str(folder), [folder])
+    assert f"in use by mdgs train (process {os.getppid()} on this machine" in line, line
