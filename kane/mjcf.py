@@ -86,7 +86,8 @@ def load_model(path: str | Path):
 
     p = Path(path)
     if not p.is_file():
-        raise MjcfUnsupported(f"{path}: no such file; pass an MJCF file.")
+        raise MjcfUnsupported(f"{path}: " + ("is a folder, not a file" if p.is_dir() else "no such file")
+                              + "; pass an MJCF file.")
     try:
         return mujoco.MjModel.from_xml_path(str(p))
     except Exception as exc:  # MuJoCo's own parse/compile error, one line

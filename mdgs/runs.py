@@ -12,6 +12,13 @@ Every file any ``mdgs`` command writes goes through :func:`atomic_write` (a temp
 sibling renamed onto the target, :func:`mdgs.data.io.atomic_path`), so an interrupted
 command leaves either the old file or the new one, never half of one.
 
+Two processes never write one run folder at once: :func:`folder_lock` holds ``OUT/.lock``
+(created with ``O_EXCL``, holding the writer's host and pid) while ``mdgs train`` or ``mdgs
+study`` writes the folder. It works on a network file system shared by several machines: a
+process id means something only on its own host, so a lock is judged stale (its process gone,
+e.g. after ``kill -9``) and taken over only by a process on the host that wrote it; a lock of
+another host is refused with one sentence saying how to remove it.
+
 Checkpoint format 2 names its model (``model_name``, a key of :data:`mdgs.models.MODELS`)
 and stores that model's config; format 1 (before the model registry, MDGS only) still
 loads for evaluation, and is refused for resuming with one sentence.
@@ -21,13 +28,15 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import fields
 from pathlib import Path
 
 import torch
 
-from mdgs.data.io import atomic_path
+from mdgs.data.io import _alive, atomic_path, host_tag, output_problem
 
 __all__ = [
     "RunError",
@@ -40,7 +49,13 @@ __all__ = [
     "write_checkpoint",
     "load_model",
     "load_run",
+    "check_run_folder",
+    "folder_lock",
+    "LOCK_NAME",
 ]
+
+#: Name of the lock file of a run (or study) folder.
+LOCK_NAME = ".lock"
 
 #: Version of the checkpoint layout written by :func:`write_checkpoint`.
 CHECKPOINT_FORMAT = 2
@@ -65,6 +80,77 @@ def atomic_savefig(fig, path: str | os.PathLike, **kw) -> None:
     """``fig.savefig`` to ``path`` atomically (the format follows ``path``'s suffix)."""
     fmt = Path(path).suffix.lstrip(".") or "png"
     atomic_write(path, lambda p: fig.savefig(p, format=fmt, **kw))
+
+
+def _lock_holder(path: Path) -> dict | None:
+    """The lock file's ``{"host", "pid", ...}``; None if it is gone or unreadable."""
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+@contextmanager
+def folder_lock(folder: str | os.PathLike, what: str, flag: str = "--out", name: str = LOCK_NAME) -> Iterator[Path]:
+    """Hold ``folder/name`` while the block writes ``folder`` (created if missing); RunError if another
+    process holds it.
+
+    The lock file is created with ``O_CREAT | O_EXCL`` (atomic on local and NFSv3+ file systems) and
+    holds ``{"host", "pid", "command", "since"}``. A lock whose host is this host
+    (:func:`mdgs.data.io.host_tag`) and whose process is gone is stale and taken over; a lock of
+    another host is never judged from here. On leaving, the lock is removed (if it is still ours),
+    and a folder this call created is removed again if nothing was written into it, so a command
+    refused after taking the lock leaves no trace.
+    """
+    folder = Path(folder)
+    problem = output_problem(folder, flag)
+    if problem:
+        raise RunError(problem)
+    created = not folder.exists()
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / name
+    me = {"host": host_tag(), "pid": os.getpid(), "command": what,
+          "since": time.strftime("%Y-%m-%d %H:%M:%S")}
+    try:
+        for attempt in range(3):
+            try:
+                fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+            except FileExistsError:
+                holder = _lock_holder(path)
+                if holder is None:
+                    if attempt < 2:  # being written or removed right now: look again
+                        time.sleep(0.05)
+                        continue
+                    raise RunError(f"{folder} is locked by {path}, which names no process; if no mdgs command "
+                                   f"writes {folder}, delete {path} and rerun") from None
+                ours = holder.get("host") == me["host"]
+                pid = holder.get("pid")
+                if ours and isinstance(pid, int) and pid != os.getpid() and not _alive(pid):
+                    if _lock_holder(path) == holder:  # stale: its process is gone; take it over
+                        path.unlink(missing_ok=True)
+                    continue
+                where = "this machine" if ours else f"host {holder.get('host')}"
+                hint = ("wait for it to finish or stop it" if ours else
+                        f"wait for it to finish; if that process no longer runs on {holder.get('host')}, "
+                        f"delete {path}")
+                raise RunError(f"{folder} is in use by {holder.get('command', 'another command')} (process {pid} "
+                               f"on {where}, since {holder.get('since', '?')}); {hint}, or choose another {flag}") from None
+            with os.fdopen(fd, "w") as f:
+                f.write(json.dumps(me) + "\n")
+                f.flush()
+                os.fsync(f.fileno())
+            break
+        else:
+            raise RunError(f"{folder}: could not take the lock {path}; rerun the command")
+        try:
+            yield path
+        finally:
+            if _lock_holder(path) == me:
+                path.unlink(missing_ok=True)
+    finally:
+        if created and folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()
 
 
 def resolve_device(name: str) -> torch.device:
@@ -127,12 +213,33 @@ def load_model(state: dict, dev):
     return model
 
 
+def check_run_folder(run: str | os.PathLike) -> Path:
+    """``<run>/checkpoint.pt`` if ``run`` is a run folder with a finished epoch; RunError saying what it is instead.
+
+    A folder with ``config.json`` but no checkpoint is a run interrupted (or still running) in its
+    first epoch: rerunning its ``mdgs train`` command resumes it.
+    """
+    run = Path(run)
+    path = run / "checkpoint.pt"
+    if not run.exists():
+        raise RunError(f"run folder {run} does not exist; train one with `mdgs train --data DIR --out {run}`")
+    if not run.is_dir():
+        raise RunError(f"run folder {run} is a file, not a folder; pass a folder written by `mdgs train --out`")
+    if not path.exists():
+        if (run / "config.json").exists():
+            raise RunError(f"{run} holds no finished epoch yet (its training was interrupted in the first epoch, "
+                           f"or is still running); rerun its `mdgs train ... --out {run}` command (settings in "
+                           f"{run / 'config.json'}) to resume it")
+        raise RunError(f"{run} is not a run folder (no checkpoint.pt, no config.json); train one with "
+                       f"`mdgs train --data DIR --out {run}`")
+    return path
+
+
 def load_run(run: str | os.PathLike, dev) -> tuple:
     """Load ``<run>/checkpoint.pt`` -> (model on ``dev`` in eval mode, checkpoint dict)."""
-    path = Path(run) / "checkpoint.pt"
-    if not Path(run).is_dir():
-        raise RunError(f"run folder {run} is not a folder; train one with `mdgs train --data DIR --out {run}`")
-    if not path.exists():
-        raise RunError(f"{run} has no checkpoint.pt (no epoch finished yet); run `mdgs train` with --out {run} first")
+    path = check_run_folder(run)
     state = read_checkpoint(path, dev)
-    return load_model(state, dev), state
+    try:
+        return load_model(state, dev), state
+    except RunError as e:  # name the file: several runs may be evaluated at once
+        raise RunError(f"{path}: {e}") from None

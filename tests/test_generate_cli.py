@@ -103,7 +103,7 @@ def test_settings_mismatch_in_the_same_out_is_refused(reference, tmp_path):
         (["cubli-single", "--out", "x", "--preset", "huge"], "unknown preset 'huge'"),
         (["cubli-single", "--out", "x", "--shard", "2"], "--shard '2' is not of the form I/N"),
         (["cubli-single", "--out", "x", "--workers", "0"], "--workers 0 must be at least 1"),
-        (["--mjcf", "missing.xml", "--out", "x"], "MJCF file missing.xml does not exist"),
+        (["--mjcf", "missing.xml", "--out", "x"], "--mjcf missing.xml does not exist"),
         (["--out", "x"], "name a SCENE"),
     ],
 )

@@ -46,7 +46,8 @@ def check_mjcf(path: str | Path, check: list[str] | None = None, case: list[str]
     from kane.mjcf_checks import run_mjcf_checks
 
     if not Path(path).is_file():
-        raise MjcfError(f"--mjcf {path}: no such file; pass an MJCF file.")
+        what = "is a folder, not a file" if Path(path).is_dir() else "no such file"
+        raise MjcfError(f"--mjcf {path}: {what}; pass an MJCF file.")
     try:
         results = run_mjcf_checks(path, claim_ids=check or None, quick=quick, seed=seed)
     except MjcfUnsupported as e:

@@ -83,32 +83,41 @@ def generate(
     if mjcf is None and not scene:
         fail("name a SCENE (see `mdgs generate --list`) or give --mjcf FILE")
     if mjcf is not None and not mjcf.is_file():
-        fail(f"MJCF file {mjcf} does not exist")
+        fail(f"--mjcf {mjcf} " + ("is a folder, not an MJCF file" if mjcf.is_dir() else "does not exist")
+             + "; pass the path of an MJCF (.xml) file")
     names = list(SCENES) if scene == "all" else [scene] if scene else [""]
     for name in names:
         if name and name not in SCENES:
             fail(f"unknown scene '{name}'; run `mdgs generate --list` to see the scenes")
     shard_t = parse_share(shard, "--shard")
-    for name in names:
+    cfgs = []
+    for name in names:  # every setting is checked (GenerateConfig) before anything is written
         target = out / name if scene == "all" else out
-        cfg = GenerateConfig(
-            scene=name,
-            out=str(target),
-            preset=preset,
-            n_traj=n_traj,
-            seed=seed,
-            workers=workers,
-            shard=shard_t,
-            mjcf=str(mjcf) if mjcf else None,
-            substeps=substeps,
-            partition=PartitionParams(refine=refine),
-        )
         try:
-            res = _run_with_progress(run, cfg, name or mjcf.stem)
+            cfgs.append(GenerateConfig(
+                scene=name,
+                out=str(target),
+                preset=preset,
+                n_traj=n_traj,
+                seed=seed,
+                workers=workers,
+                shard=shard_t,
+                mjcf=str(mjcf) if mjcf else None,
+                substeps=substeps,
+                partition=PartitionParams(refine=refine),
+            ))
+        except DatasetError as e:
+            fail(str(e))
+    for cfg in cfgs:
+        try:
+            res = _run_with_progress(run, cfg, cfg.scene or mjcf.stem)
         except (DatasetError, SceneError, PartitionError, ValueError, FileNotFoundError) as e:
             fail(str(e))
         except KeyError as e:
             fail(str(e.args[0]) if e.args else str(e))
+        except KeyboardInterrupt:
+            typer.echo(f"interrupted; rerun the same command to resume {cfg.out} (finished parts are kept)", err=True)
+            raise typer.Exit(130) from None
         _summary(res)
 
 

@@ -63,7 +63,7 @@ def train_cmd(
     except (ModelError, RunError) as e:
         fail(str(e))
     try:
-        last = _train_with_progress(cfg)
+        last, done = _train_with_progress(cfg)
     except (DatasetError, RunError, ModelError) as e:
         fail(str(e))
     except KeyboardInterrupt:
@@ -75,7 +75,8 @@ def train_cmd(
         losses = ", ".join(f"L_{k[6:]} {v:.4g}" for k, v in last.items() if k.startswith("train_") and k != "train_seconds")
         typer.echo(f"{out}: epoch {last['epoch'] + 1}/{epochs}, train {losses}, valid one-step MSE {last['valid_mse']:.4g}")
     else:
-        typer.echo(f"{out}: already trained for {epochs} epochs; raise --epochs to continue")
+        typer.echo(f"{out}: already holds {done.get('finished', '?')} finished epochs (--epochs {epochs}); "
+                   "raise --epochs to continue it")
 
 
 def parse_settings(config_cls, items: list[str]) -> dict:
@@ -109,18 +110,22 @@ def parse_settings(config_cls, items: list[str]) -> dict:
     return out
 
 
-def _train_with_progress(cfg) -> dict:
+def _train_with_progress(cfg) -> tuple[dict, dict]:
+    """Train with a progress bar -> (last epoch's metrics, ``{"finished": N}`` when nothing was left to do)."""
     from rich.progress import TextColumn
 
     from mdgs.train import train
 
     progress, console = progress_bar(TextColumn("{task.fields[loss]}"))
+    done: dict = {}
     with progress as bar:
         task = None
 
         def on(e: dict) -> None:
             nonlocal task
-            if e["kind"] == "start":
+            if e["kind"] == "done":
+                done["finished"] = e["epoch"] + 1
+            elif e["kind"] == "start":
                 if e["epoch"]:
                     console.print(f"resuming {cfg.out} ({e['model']}) at epoch {e['epoch'] + 1} of {e['epochs']} "
                                   f"on {e['device']}")
@@ -142,4 +147,4 @@ def _train_with_progress(cfg) -> dict:
                 console.print(f"epoch {e['epoch'] + 1}: train {losses}, valid MSE {e['valid_mse']:.4g}, "
                               f"lr {e['lr']:.3g}, {e['seconds']:.1f} s")
 
-        return train(cfg, progress=on)
+        return train(cfg, progress=on), done

@@ -19,6 +19,7 @@ from rich.table import Table
 from rich.text import Text
 
 from mdgs.cli import EXIT_ERROR, EXIT_HOLDS, app, main
+from mdgs.data.io import output_problem
 from mdgs.data.schema import DatasetError
 from validation import report as _report
 from validation.report import counterexample_line, format_number
@@ -121,6 +122,8 @@ def _run_kane(check: list[str] | None, case: list[str] | None, quick: bool, seed
 
 
 def _run_data(path: str, check: list[str] | None, case: list[str] | None) -> list[dict]:
+    if Path(path).is_dir():
+        raise UsageError(f"--data {path} is a folder; pass one of its dataset files, e.g. {Path(path) / 'test.h5'}.")
     if not Path(path).is_file():
         raise UsageError(f"--data {path}: no such file; pass a dataset file written by `mdgs generate`.")
     try:
@@ -139,7 +142,8 @@ def _load_counterexample(path: str, check: list[str] | None) -> dict:
     report (the first entry with a counterexample, among ``--check`` ids when given)."""
     p = Path(path)
     if not p.is_file():
-        raise UsageError(f"--replay {path}: no such file; pass a counterexample or a report written by `mdgs validate --json`.")
+        what = "is a folder, not a file" if p.is_dir() else "no such file"
+        raise UsageError(f"--replay {path}: {what}; pass a counterexample or a report written by `mdgs validate --json`.")
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
@@ -194,12 +198,18 @@ def validate(
 
 
 def _validate(quick, check, case, json_path, seed, replay, data, mjcf=None) -> int:
+    if not 0 <= seed < 2**32:  # numpy's and CasADi's seeds
+        raise UsageError(f"--seed {seed} must be an integer from 0 to 2**32 - 1.")
     if replay is not None:
         return _replay(replay, check)
     if json_path is not None and json_path != "-":
         folder = Path(json_path).parent
         if not folder.is_dir():
-            raise UsageError(f"--json {json_path}: folder {folder} does not exist; create it or pick another path.")
+            what = "is a file, not a folder" if folder.exists() else "does not exist"
+            raise UsageError(f"--json {json_path}: folder {folder} {what}; create it or pick another path.")
+        problem = output_problem(json_path, "--json", "file", "report.json")
+        if problem:
+            raise UsageError(problem + ".")
     to_stdout = json_path == "-"
     console = Console(stderr=to_stdout, soft_wrap=False)
     if not console.is_terminal:  # a pipe or a file: no terminal width to respect

@@ -36,6 +36,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import h5py
+import numpy as np
 
 from mdgs.data.engine import (
     LoadedScene,
@@ -49,6 +50,7 @@ from mdgs.data.io import (
     atomic_path,
     merge_files,
     open_dataset,
+    output_problem,
     remove_stale_temporaries,
     sha256_text,
     write_file,
@@ -95,6 +97,25 @@ class GenerateConfig:
     """Frames per trajectory (the preset's 110 if None); e.g. 1100 for a stability test set."""
     splits: tuple[str, ...] | None = None
     """Only these splits (e.g. ``("test",)`` for a long test set); the scene's splits if None."""
+
+    def __post_init__(self):
+        """Refuse every out-of-range number here, before anything is written (issue 15, item 5):
+        a refused run must leave no ``generate.json`` behind to block the corrected command."""
+        if self.preset not in PRESETS:
+            raise DatasetError(f"unknown preset '{self.preset}'; choose one of {', '.join(PRESETS)}")
+        for flag, val, lo in (("--seed", self.seed, 0), ("--workers", self.workers, 1),
+                              ("--substeps", self.substeps, 1), ("--n-traj", self.n_traj, 1),
+                              ("--frames", self.n_frames, 2), ("batch", self.batch, 1),
+                              ("--refine", self.partition.refine, 1)):
+            if val is None and flag in ("--n-traj", "--frames", "batch"):
+                continue
+            if isinstance(val, bool) or not isinstance(val, int | np.integer) or val < lo:
+                raise DatasetError(f"{flag} {val} must be an integer of at least {lo}")
+        if self.seed >= 2**63:
+            raise DatasetError(f"--seed {self.seed} must be below 2**63")
+        i, n = self.shard
+        if not (n >= 1 and 0 <= i < n):
+            raise DatasetError(f"--shard {i}/{n} is out of range; use I/N with 0 <= I < N")
 
 
 @dataclass(frozen=True)
@@ -258,6 +279,9 @@ def _generate(cfg: GenerateConfig, progress, warn: Callable[[str], None]) -> Gen
     i, n = cfg.shard
     if not (n >= 1 and 0 <= i < n):
         raise ValueError(f"shard {i}/{n} is invalid; use I/N with 0 <= I < N")
+    problem = output_problem(cfg.out, "--out")
+    if problem:
+        raise DatasetError(problem)
     spec = resolve_scene(cfg)
     _worker_init(cfg)  # also validates the scene in this process
     loaded: LoadedScene = _WORKER["loaded"]

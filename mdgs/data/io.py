@@ -38,6 +38,8 @@ __all__ = [
     "sha256_text",
     "model_from_dataset",
     "remove_stale_temporaries",
+    "output_problem",
+    "path_kind",
 ]
 
 # Sparse arrays (mostly zeros) are compressed with LZF (fast, built into h5py; without
@@ -74,6 +76,37 @@ def atomic_path(path: Path) -> Iterator[Path]:
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def path_kind(path: str | os.PathLike) -> str:
+    """``"missing"``, ``"folder"`` or ``"file"`` (anything that exists and is not a folder)."""
+    p = Path(path)
+    return "folder" if p.is_dir() else "file" if p.exists() else "missing"
+
+
+def output_problem(path: str | os.PathLike, flag: str, kind: str = "folder", example: str = "") -> str | None:
+    """Why ``path`` cannot receive a command's output, in one sentence naming ``flag``; None if it can.
+
+    ``kind`` is ``"folder"`` (a folder the command creates or fills) or ``"file"`` (a file it
+    writes). Checked before anything is written, so a refused command leaves nothing behind:
+    a file where the folder belongs, a folder where the file belongs, a parent that is a file,
+    and the nearest existing folder not writable (:func:`os.access`; root passes that test, and
+    what still fails at write time is an ``OSError`` naming the path, exit 2 in the CLI).
+    ``example`` is a file name for the hint when a folder is given for a file.
+    """
+    p = Path(path)
+    if kind == "folder" and p.exists() and not p.is_dir():
+        return f"{flag} {p} is a file, not a folder; choose a folder path (it is created if missing)"
+    if kind == "file" and p.is_dir():
+        return f"{flag} {p} is a folder, not a file; give a file path such as {p / (example or 'report.json')}"
+    a = p if kind == "folder" else p.parent
+    while not a.exists() and a != a.parent:
+        a = a.parent
+    if a.exists() and not a.is_dir():
+        return f"{flag} {p}: {a} is a file, not a folder; choose a path whose folders are folders"
+    if a.exists() and not os.access(a, os.W_OK | os.X_OK):
+        return f"{flag} {p}: folder {a} is not writable; choose a folder you can write to"
+    return None
 
 
 _TMP = re.compile(r"^\..+\.tmp(\d+)(?:-([-A-Za-z0-9_.]+))?$")
@@ -316,7 +349,7 @@ class Dataset:
             raise DatasetError(
                 f"{self.path}: no array '{name}' in /frames; known: {', '.join(self._f['frames'])}"
             ) from None
-        except OSError as e:
+        except (OSError, RuntimeError) as e:
             raise DatasetError(f"{self.path} is corrupted ({_short(e)}); {_REGEN}") from None
 
     def close(self) -> None:
@@ -367,8 +400,8 @@ def open_dataset(
     except DatasetError:
         f.close()
         raise
-    except (OSError, KeyError, ValueError, TypeError) as e:
-        f.close()
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError) as e:  # h5py: RuntimeError for a bad
+        f.close()  # metadata checksum
         raise DatasetError(f"{path} is corrupted ({_short(e)}); {_REGEN}") from None
 
 

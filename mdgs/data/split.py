@@ -119,8 +119,8 @@ def load_split(path: str | os.PathLike) -> SplitData:
         mjcf = ds.mjcf
         assets = dict(getattr(ds, "assets", None) or {})
         model = model_from_dataset(ds) if ctrl.shape[-1] else None
-    for name, a in (("node_pos", x), ("node_vel", v), ("ctrl", ctrl)):
-        if not np.isfinite(a).all():
+    for name, a in (("node_pos", x), ("node_vel", v), ("ctrl", ctrl), ("qpos", qpos), ("qvel", qvel), ("act", act)):
+        if not np.isfinite(a).all():  # also MuJoCo's state: the reference and the evaluation start from it
             t = int(np.argwhere(~np.isfinite(a))[0][0])
             raise DatasetError(f"{path}: /frames/{name} holds NaN or infinite values (first in trajectory {t}); "
                                "regenerate the dataset with `mdgs generate` or remove that trajectory")

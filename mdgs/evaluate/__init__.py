@@ -12,13 +12,14 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from mdgs.data.io import output_problem
 from mdgs.data.split import SplitData, load_splits
 from mdgs.evaluate import rollout as _rollout
 from mdgs.evaluate.metrics import REPORT_TIMES, aggregate, rollout_metrics
 from mdgs.evaluate.plots import plot_rollout_mse, plot_trajectory
 from mdgs.evaluate.rollout import DIVERGENCE_FACTOR, Rollout
 from mdgs.models import Simulator, get_model, one_step_error
-from mdgs.runs import RunError, atomic_json, load_run, resolve_device
+from mdgs.runs import RunError, atomic_json, check_run_folder, load_run, resolve_device
 
 __all__ = ["DIVERGENCE_FACTOR", "REPORT_TIMES", "Rollout", "evaluate", "evaluate_run",
            "evaluate_reference", "reference_label"]
@@ -100,14 +101,19 @@ def evaluate(runs: list[str | os.PathLike], data: str | os.PathLike, split: str 
     dev = resolve_device(device)
     if not runs:
         raise RunError("name at least one run folder to evaluate")
+    for run in runs:  # the run folders first: a default report path lies inside one
+        check_run_folder(run)
     if json_path is None:
         base = Path(runs[0]) if len(runs) == 1 else Path(runs[0]).resolve().parent
         json_path = base / f"evaluation-{split}.json"
     json_path = Path(json_path)
     if not json_path.parent.is_dir():
-        raise RunError(f"--json {json_path}: folder {json_path.parent} is not a folder; create it or choose another path")
-    if json_path.is_dir():
-        raise RunError(f"--json {json_path} is a folder; give a file path such as {json_path / 'report.json'}")
+        raise RunError(f"--json {json_path}: folder {json_path.parent} "
+                       + ("is a file, not a folder" if json_path.parent.exists() else "does not exist")
+                       + "; create it or choose another path")
+    problem = output_problem(json_path, "--json", "file", f"evaluation-{split}.json")
+    if problem:
+        raise RunError(problem)
     d = load_splits(data, (split,))[split]
     if not 0 <= traj < d.x.shape[0]:
         raise RunError(f"--traj {traj} is out of range; {d.path} has {d.x.shape[0]} trajectories")

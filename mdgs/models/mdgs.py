@@ -301,9 +301,18 @@ class MDGS(Simulator):
         return ctrl.to(torch.float32)[:, None, :] * sign.T[None]
 
     def set_normalization(self, mean: torch.Tensor, std: torch.Tensor) -> None:
-        """Set the per-feature mean and std of ``z`` (``[d_z]``); std is floored at 1e-8."""
-        self.z_mean.copy_(torch.as_tensor(mean, dtype=self.z_mean.dtype))
-        self.z_std.copy_(torch.as_tensor(std, dtype=self.z_std.dtype).clamp_min(1e-8))
+        """Set the per-feature mean and std of ``z`` (``[d_z]``).
+
+        A feature with no spread in the data (std at most 1e-6 of its magnitude, at least 1e-6
+        absolute: below float32 resolution; e.g. the out-of-plane velocity of a planar model) is
+        centred but not scaled (std 1): dividing by a floored std would blow the training noise
+        and any rollout drift in it up by 1/std (issue 15, item 13).
+        """
+        mean = torch.as_tensor(mean, dtype=self.z_mean.dtype)
+        std = torch.as_tensor(std, dtype=self.z_std.dtype)
+        flat = std <= 1e-6 * mean.abs().clamp_min(1.0)
+        self.z_mean.copy_(mean)
+        self.z_std.copy_(torch.where(flat, torch.ones_like(std), std))
 
     def force_parameters(self):
         """Parameters of the force networks g^F~, g^F- (and g^Z-, which feeds only g^F-)."""

@@ -59,7 +59,7 @@ def user_scene(path: str, substeps: int = 10) -> SceneSpec:
     """Describe the MJCF file ``path`` as a scene (name: the file's stem)."""
     p = Path(path)
     if not p.is_file():
-        raise FileNotFoundError(f"MJCF file {path} does not exist")
+        raise ValueError(f"MJCF file {path} " + ("is a folder, not a file" if p.is_dir() else "does not exist"))
     try:
         model = mujoco.MjModel.from_xml_path(str(p))
     except Exception as e:

@@ -22,11 +22,16 @@ def report(out: str | os.PathLike, name: str | None = None) -> list[str]:
     """Rebuild the tables and charts of the study in ``out`` from its results files; returns the files written."""
     import json
 
+    from mdgs.data.io import output_problem
     from mdgs.runs import atomic_write
 
     out = Path(out)
     if not out.is_dir():
-        raise StudyError(f"{out} is not a study folder (it does not exist); run `mdgs study FILE --out {out}` first")
+        raise StudyError(f"--report {out} " + ("is a file, not a study folder" if out.exists() else "does not exist")
+                         + "; pass the --out folder of `mdgs study FILE --out DIR`")
+    problem = output_problem(out, "--report")
+    if problem:
+        raise StudyError(problem)
     lines = read_results(out, usable=True)
     if not lines:
         raise StudyError(f"{out} holds no finished cell yet (no results*.jsonl lines); run the study first")

@@ -36,6 +36,7 @@ import numpy as np
 import torch
 
 from mdgs.data.generate import GenerateConfig, generate
+from mdgs.data.io import output_problem
 from mdgs.data.split import SplitData, load_split
 from mdgs.evaluate.cost import step_cost
 from mdgs.evaluate.metrics import REPORT_TIMES, frame_of
@@ -43,7 +44,7 @@ from mdgs.evaluate.physics import energy_error, hinge_anchors, joint_separation,
 from mdgs.evaluate.rollout import divergence_threshold, rollout
 from mdgs.models import MODELS, ModelError, Simulator, one_step_error
 from mdgs.partition import PartitionParams
-from mdgs.runs import atomic_json, load_run, resolve_device
+from mdgs.runs import LOCK_NAME, atomic_json, folder_lock, load_run, resolve_device
 from mdgs.study.config import SceneEntry, StudyConfig, StudyError
 from mdgs.train import TrainConfig, TrainingError, train
 
@@ -314,24 +315,32 @@ def _append(path: Path, rec: dict) -> None:
         os.close(fd)
 
 
-def _claim_folder(study: StudyConfig, out: Path) -> None:
-    """Create ``out`` for this study, or check that it already holds this study."""
+def _check_folder(study: StudyConfig, out: Path) -> None:
+    """Check, writing nothing, that ``out`` can hold this study: new, empty, or holding this study."""
     marker = out / "study.json"
-    if out.exists() and not out.is_dir():
-        raise StudyError(f"--out {out} is a file; choose a folder")
+    problem = output_problem(out, "--out")
+    if problem:
+        raise StudyError(problem)
     if marker.exists():
         try:
-            theirs = json.loads(marker.read_text())
-        except json.JSONDecodeError:
+            theirs = json.loads(marker.read_text(encoding="utf-8"))
+        except ValueError:  # not JSON, not UTF-8
+            theirs = {}
+        if not isinstance(theirs, dict):
             theirs = {}
         if theirs.get("name") != study.name:
             raise StudyError(f"{out} holds results of study {theirs.get('name')!r}, not {study.name!r}; "
                              "choose another --out")
         return
-    if out.exists() and any(out.iterdir()):
+    if out.exists() and any(not p.name.startswith(LOCK_NAME) for p in out.iterdir()):
         raise StudyError(f"{out} is not empty and holds no study; choose an empty or new folder for --out")
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_json({"name": study.name, "path": study.path, "fingerprint": study.fingerprint()}, marker)
+
+
+def _claim_folder(study: StudyConfig, out: Path) -> None:
+    """Mark ``out`` (created and locked by the caller) as holding this study."""
+    marker = out / "study.json"
+    if not marker.exists():
+        atomic_json({"name": study.name, "path": study.path, "fingerprint": study.fingerprint()}, marker)
 
 
 def run_study(study: StudyConfig, out: str | os.PathLike, share: tuple[int, int] = (0, 1),
@@ -339,7 +348,16 @@ def run_study(study: StudyConfig, out: str | os.PathLike, share: tuple[int, int]
     """Run this process's share of the study's cells; returns counts ``{"cells", "done", "ran"}``."""
     progress = progress or (lambda e: None)
     out = Path(out)
-    _claim_folder(study, out)
+    _check_folder(study, out)
+    i, n = share
+    # one process per share of a study folder (each cell's run folder has its own lock as well)
+    with folder_lock(out, f"mdgs study {study.name} (cells {i}/{n})",
+                     name=LOCK_NAME if n == 1 else f"{LOCK_NAME}-{i}-of-{n}"):
+        _claim_folder(study, out)
+        return _run_share(study, out, share, progress)
+
+
+def _run_share(study: StudyConfig, out: Path, share: tuple[int, int], progress) -> dict:
     path = _results_path(out, share)
     _repair(path)
     done = {r["cell"] for r in read_results(out)}

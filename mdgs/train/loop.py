@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -24,10 +25,18 @@ from typing import Any
 import numpy as np
 import torch
 
+from mdgs.data.io import output_problem
 from mdgs.data.schema import DatasetError
 from mdgs.data.split import SplitData, load_splits
 from mdgs.models import ModelError, batch_of, get_model, one_step_error
-from mdgs.runs import RunError, atomic_json, read_checkpoint, resolve_device, write_checkpoint
+from mdgs.runs import (
+    RunError,
+    atomic_json,
+    folder_lock,
+    read_checkpoint,
+    resolve_device,
+    write_checkpoint,
+)
 from mdgs.train.distributed import setup, teardown
 
 __all__ = ["TrainConfig", "TrainingError", "train"]
@@ -90,8 +99,8 @@ class TrainConfig:
                 raise RunError(f"--{name.replace('_', '-')} {val} must be an integer of at least {lo}")
         if self.lr is not None and not (isinstance(self.lr, float | int) and np.isfinite(self.lr) and self.lr > 0):
             raise RunError(f"--lr {self.lr} must be a positive number")
-        if self.seed < 0:
-            raise RunError(f"--seed {self.seed} must be at least 0")
+        if not isinstance(self.seed, int) or not 0 <= self.seed < 2**63:
+            raise RunError(f"--seed {self.seed} must be an integer from 0 to 2**63 - 1")
 
 
 def _fingerprint(cfg: TrainConfig, model_cfg: dict) -> dict:
@@ -126,10 +135,16 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, spli
                          f"evaluate it directly with `mdgs evaluate --model {cfg.model_name} --data DIR`")
     if cfg.lr is None:
         cfg = replace(cfg, lr=cls.default_lr)
+    problem = output_problem(cfg.out, "--out")
+    if problem:  # before reading any data: a run that cannot be written fails at once
+        raise RunError(problem)
     tr, va = _load_splits(cfg, splits)
     dist_, device = setup(cfg.device)
     try:
-        return _train(cfg, progress, tr, va, cls, dist_, resolve_device(device))
+        dev = resolve_device(device)
+        # rank 0 writes the run folder; it holds the folder's lock, so no other process writes it too
+        with folder_lock(cfg.out, f"mdgs train ({cfg.model_name})") if dist_.is_main else nullcontext():
+            return _train(cfg, progress, tr, va, cls, dist_, dev)
     finally:
         teardown(dist_)
 
@@ -152,6 +167,9 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
         if state["format"] < 2:
             raise RunError(f"{ckpt_path} was written by an mdgs version before the model registry and cannot be "
                            "resumed; it still evaluates with `mdgs evaluate`; choose another --out to train anew")
+        if state["model_name"] != cls.name:
+            raise RunError(f"{out} holds a run of model {state['model_name']!r}, not {cls.name!r}; rerun with "
+                           f"--model {state['model_name']}, choose another --out, or delete {ckpt_path}")
         if state["data_identity"]["mjcf_sha256"] != tr.identity()["mjcf_sha256"]:
             raise RunError(f"{out} holds a run trained on scene {state['data_identity']['scene']!r}, not on "
                            f"{tr.identity()['scene']!r} from {cfg.data}; choose another --out or delete {ckpt_path}")
