@@ -13,6 +13,7 @@ Placeholders (in any ``docs/*.md``)::
     {{ normalisation }} how residuals and margins are normalised
     {{ cli }}          the reference of every ``mdgs`` command, read from the typer app
     {{ exit_codes }}   the exit-code table of every command
+    {{ results_status }} what the committed study holds: cells per model and scene, seeds
     {{ mjcf:PATH }}    Kane's equations of the MJCF file PATH (relative to the repository
                        root) derived by ``kane.mjcf.from_mjcf``, with the engine residuals
 
@@ -37,7 +38,7 @@ from mkdocs.exceptions import PluginError
 
 log = logging.getLogger("mkdocs.hooks.mdgs")
 
-_PLACEHOLDER = re.compile(r"\{\{\s*(latex|claim):([A-Za-z0-9_.]+)\s*\}\}|\{\{\s*(report|findings|summary|cli|exit_codes|normalisation)\s*\}\}")
+_PLACEHOLDER = re.compile(r"\{\{\s*(latex|claim):([A-Za-z0-9_.]+)\s*\}\}|\{\{\s*(report|findings|summary|cli|exit_codes|normalisation|results_status)\s*\}\}")
 _state: dict = {}
 
 # --------------------------------------------------------------------------- sources
@@ -107,7 +108,8 @@ def _h(text: str) -> str:
 def _plain(s: str) -> str:
     s = html.escape(s, quote=False).replace("&lt;code&gt;", "<code>").replace("&lt;/code&gt;", "</code>")
     s = re.sub(r"`([^`]+)`", r"<code>\1</code>", s)
-    return re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", s)
+    s = re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", s)
+    return s.replace("*", "&#42;").replace("_", "&#95;")  # no Markdown emphasis inside admonitions
 
 
 def _badge(verdict: str | None) -> str:
@@ -121,7 +123,8 @@ def _num(x) -> str:
 
 def _case(case: str) -> str:
     """A case name: an identifier (``--case NAME``) as code, a description as text."""
-    return f"<code>{html.escape(case)}</code>" if "_" in case else html.escape(case)
+    s = re.sub(r"\b(\w+_\w+)\b", r"<code>\1</code>", html.escape(case))
+    return re.sub(r"\b(Psi|tau|omega|alpha|gamma|delta)\b", lambda m: f'<span class="arithmatex">\\(\\{m.group(1)}\\)</span>', s)
 
 
 def _table(head: list[str], rows: list[list[str]], cls: str = "") -> str:
@@ -159,7 +162,7 @@ def _scope(cid: str) -> str:
 
 # --------------------------------------------------------------------------- equations
 
-_NARROW = 40  # glyphs: a relation wider than this is written over two lines (390 px column)
+_NARROW = 28  # glyphs: a relation wider than this is written over two lines (390 px column)
 
 
 def _display(cid: str) -> str:
@@ -394,6 +397,29 @@ def _cli_block() -> str:
     return "\n".join(out)
 
 
+def _results_status(root: str) -> str:
+    """Which cells the committed study (``docs/results/small/results*.jsonl``) holds, per model."""
+    import glob
+
+    lines = []
+    for f in sorted(glob.glob(os.path.join(root, "docs", "results", "small", "results*.jsonl"))):
+        with open(f, encoding="utf-8") as fh:
+            lines += [json.loads(x) for x in fh if x.strip()]
+    if not lines:
+        return "<p><strong>No results are committed yet</strong>: the tables and charts below appear once the study has finished its first cells.</p>"
+    models: dict = {}
+    for d in lines:
+        m = models.setdefault((d.get("kind") != "reference", d["model"]), {"scenes": set(), "seeds": set(), "n": 0})
+        m["scenes"].add(d["scene"])
+        m["seeds"].add(d["seed"])
+        m["n"] += 1
+    rows = [[f"<code>{html.escape(name)}</code>", "learned" if learned else "reference", str(v["n"]),
+             ", ".join(sorted(v["scenes"])), ", ".join(str(x) for x in sorted(v["seeds"]))]
+            for (learned, name), v in sorted(models.items())]
+    return (f"<p>The committed study holds <strong>{len(lines)} finished cells</strong>, read when this site was built:</p>\n"
+            + _table(["model", "kind", "cells", "scenes", "seeds"], rows, "stack"))
+
+
 # --------------------------------------------------------------------------- MJCF
 
 
@@ -461,6 +487,8 @@ def on_page_markdown(markdown: str, page, config, files, **kwargs) -> str:
             return _display(cid)
         if kind == "claim":
             return _claim_block(cid)
+        if name == "results_status":
+            return _results_status(root)
         return {"report": _report_block, "findings": _findings_block, "summary": _summary_block, "cli": _cli_block,
                 "exit_codes": _exit_codes_block, "normalisation": _normalisation_block}[name]()
 
@@ -472,6 +500,20 @@ def on_page_markdown(markdown: str, page, config, files, **kwargs) -> str:
 _ROLE = re.compile(r":(?:py:)?(?:func|class|mod|meth|data|attr|exc|obj|const|math):(?=<code>|`|<span)")
 
 
+_SUP = str.maketrans("0123456789-", "⁰¹²³⁴⁵⁶⁷⁸⁹⁻")
+_CARET = re.compile(r"\b([A-Za-z])\^(-?\d)\b")
+_KEEP = re.compile(r'<pre\b.*?</pre>|<code\b.*?</code>|<script\b.*?</script>|<(span|div) class="arithmatex">.*?</\1>', re.S)
+
+
 def on_page_content(html_text: str, page, config, files, **kwargs) -> str:
-    """Drop the sphinx roles (``:func:``) that docstrings carry before their code span."""
-    return _ROLE.sub("", html_text)
+    """Drop the sphinx roles (``:func:``) that docstrings carry before their code span, and
+    write the carets of units in docstrings and help texts (``m^2``) as superscripts, outside
+    code and math."""
+    html_text = _ROLE.sub("", html_text)
+    out, pos = [], 0
+    for m in _KEEP.finditer(html_text):
+        out.append(_CARET.sub(lambda c: c.group(1) + c.group(2).translate(_SUP), html_text[pos:m.start()]))
+        out.append(m.group(0))
+        pos = m.end()
+    out.append(_CARET.sub(lambda c: c.group(1) + c.group(2).translate(_SUP), html_text[pos:]))
+    return "".join(out)

@@ -511,7 +511,7 @@ def fmt(x: float, digits: int = 4, zero: float = 1e-12) -> str:
 
 def _vec(v, digits: int = 3) -> str:
     v = np.asarray(v, float)
-    tiny = 1e-9 * (np.abs(v).max() + 1e-300)
+    tiny = max(1e-12, 1e-9 * np.abs(v).max())  # round-off: below 1e-12 absolute or 1e-9 relative
     return "(" + ", ".join(fmt(c, digits, tiny) for c in v) + ")"
 
 
@@ -616,7 +616,7 @@ def counterexample_view(row: dict) -> dict | None:
         rel = rep.relative(lhs, rhs)
         if rel is not None:
             sides.append(("relative margin (lhs − rhs)/scale", f"{rel:.3g}"))
-        src = f"MuJoCo ({eng}), as `mdgs validate --replay` prints it"
+        src = f"{'MuJoCo' if eng == 'mujoco' else eng}'s side of the replay, as `mdgs validate --replay` prints it"
     elif kind == "scaling":
         from kane.adversarial import Sample
         from kane.element_claims import element_model
@@ -652,7 +652,10 @@ def counterexample_view(row: dict) -> dict | None:
                         r"a non-principal axis of its own and needs the gyroscopic torque \(\boldsymbol\omega\times\mathbf I_i"
                         r"\boldsymbol\omega\) from the other half, an inter-element force that the paper leaves out of \(\Psi\).")
         else:
-            quantities = [("case", row["case"])] + [(k, str(cex[k])) for k in ("integrator", "frame", "gamma", "translational") if k in cex]
+            names = {"integrator": "integrator", "frame": "frame", "gamma": r"speed \(\gamma\) (index)",
+                     "translational": "translational speed"}
+            quantities = [("case", row["case"])] + [(names[k], {True: "yes", False: "no"}.get(cex[k], str(cex[k])))
+                                                    for k in names if k in cex]
             sides = [("largest relative residual (the report's number)", f"{row['residual']:.3g}"), ("tolerance", f"{row['tolerance']:.3g}")]
             sentence = ("For a rotational speed the partial velocities are not one-hot, so the element sum of Eq. (11) is not "
                         "Kane's equation for that speed." if cex.get("translational") is False else
