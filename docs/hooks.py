@@ -219,10 +219,21 @@ def _expanded(cid: str) -> list[str]:
 
 
 def _checks_table(rows: list[dict]) -> str:
+    """One row per check, refuted first; a clause column when the checks try several clauses."""
+    from validation.render import TEXT
+
     rows = sorted(rows, key=lambda r: {"refuted": 0, "error": 1}.get(r["verdict"], 2))
-    return _table(["case", "route", "verdict", "residual or relative margin", "tolerance"],
-                  [[_case(r["case"]), html.escape(r["route"]), _badge(r["verdict"]), _num(r["residual"]), _num(r["tolerance"])]
-                   for r in rows], "checks")
+    clauses = {r.get("clause") or "" for r in rows}
+    head = ["case", "route", "verdict", "residual or relative margin", "tolerance"]
+    body = [[_case(r["case"]), html.escape(r["route"]), _badge(r["verdict"]), _num(r["residual"]), _num(r["tolerance"])]
+            for r in rows]
+    if len(clauses) > 1:
+        texts = {r["id"]: TEXT.get(r["id"], {}).get("clauses", {}) for r in rows}
+        head.insert(0, "clause")
+        for b, r in zip(body, rows, strict=True):
+            t = texts[r["id"]].get(r.get("clause") or "", r.get("clause") or "")
+            b.insert(0, _h(t.split(")", 1)[0] + ")" if t.startswith("(") else t))
+    return _table(head, body, "checks")
 
 
 def _cex_block(r: dict, indent: str = "") -> list[str]:
@@ -334,8 +345,8 @@ def _report_block() -> str:
             c = claims.get(g)
             rows = [r for r in rep["checks"] if r["id"] == g]
             title = _title(g) if c else html.escape(g)
-            out += [f"### {_eq(c) if c else g}: {re.sub(r'<[^>]+>', '', title) if '<span' not in title else title}", "",
-                    f'<p class="scope">{_badge(summ[g]["verdict"])} <strong>Scope:</strong> {_scope(g)}. '
+            out += [f"### {_eq(c) if c else g} &mdash; {summ[g]['verdict']}", "",
+                    f"<p><strong>{title}.</strong> {_badge(summ[g]['verdict'])} <strong>Scope:</strong> {_scope(g)}. "
                     f'<a href="../theory/#{g.replace(".", "-")}">Derivation and counterexamples</a>.</p>', "",
                     _checks_table(rows), ""]
     env = rep.get("environment") or environment()
@@ -346,7 +357,7 @@ def _report_block() -> str:
 def _normalisation_block() -> str:
     from validation.render import NORMALISATION
 
-    return f"<p>{_h(NORMALISATION)}</p>"
+    return _h(NORMALISATION)
 
 
 EXIT_CODES = (
@@ -389,7 +400,7 @@ def _cli_block() -> str:
             else:
                 value = html.escape(p.metavar or (p.name.upper() if not p.opts[0].startswith("-") else type(p.default).__name__
                                                   if p.default is not None else "TEXT"))
-            default = "" if p.default in (None, False, ()) or p.required else f"<code>{html.escape(str(p.default))}</code>"
+            default = "&ndash;" if p.default in (None, False, ()) or p.required else f"<code>{html.escape(str(p.default))}</code>"
             if not p.opts[0].startswith("-"):
                 names = f"<code>{html.escape(p.name.upper())}</code>" + (" (required)" if p.required else " (optional)")
             rows.append([names, value, default, _plain(getattr(p, "help", None) or "")])
@@ -442,10 +453,20 @@ def _mjcf_block(rel: str, root: str) -> str:
     def lx(e) -> str:
         return sp.latex(e)
 
-    def rows(mat) -> str:
-        """A column of equations, one entry per speed, each on its own line."""
-        items = [lx(x) for x in mat]
-        return "\\begin{aligned}\n" + " \\\\\n".join(f"&{x}" for x in items) + "\n\\end{aligned}"
+    def rows(mat, name: str) -> str:
+        """One entry per speed, each over lines of about 30 glyphs (a phone's column)."""
+        from validation.render import _split, _terms
+
+        out = []
+        n = mat.shape[1]
+        for k, x in enumerate(mat):
+            r = f"{k // n + 1}{k % n + 1}" if n > 1 else f"{k + 1}"
+            terms = [sp.latex(t) for t in _terms(x)]
+            terms = [t if i == 0 or t.startswith("-") else "+ " + t for i, t in enumerate(terms)]
+            body = _split(terms, 30)
+            out.append(f"{name}_{{{r}}} &= {body[0]}")
+            out += [f"&\\quad {b}" for b in body[1:]]
+        return "\\begin{aligned}\n" + " \\\\\n".join(out) + "\n\\end{aligned}"
 
     with open(path, encoding="utf-8") as f:
         xml = f.read()
@@ -458,10 +479,10 @@ def _mjcf_block(rel: str, root: str) -> str:
     for name, V, W in mm.partial_velocities:
         out += [f"- body `{name}`:", "", "    $$", f"    V = {lx(V.applyfunc(sp.trigsimp))}", "    $$", "", "    $$", f"    W = {lx(W)}", "    $$", ""]
     out += ["**Generalized active forces** \\(F_r\\) (gravity, damping, springs, actuator force symbols), one line per speed:", "",
-            "$$", rows(sm.fr), "$$", "", "**Generalized inertia forces** \\(F^*_r\\) (after `trigsimp`):", "",
-            "$$", rows(sm.frstar.applyfunc(sp.trigsimp)), "$$", "",
-            "**Mass matrix and forcing**, \\(M \\dot u = f\\):", "",
-            "$$", f"M = {lx(sm.mass_matrix.applyfunc(sp.trigsimp))}", "$$", "", "$$", "f = " + rows(sm.forcing), "$$", "",
+            "$$", rows(sm.fr, "F"), "$$", "", "**Generalized inertia forces** \\(F^*_r\\) (after `trigsimp`):", "",
+            "$$", rows(sm.frstar.applyfunc(sp.trigsimp), "F^*"), "$$", "",
+            "**Mass matrix and forcing**, \\(M \\dot u = f\\), the mass matrix row by row:", "",
+            "$$", rows(sm.mass_matrix.applyfunc(sp.trigsimp), "M"), "$$", "", "$$", rows(sm.forcing, "f"), "$$", "",
             "**Parameters** (MuJoCo's compiled values, SI units):", "", "| symbol | value |", "|---|---|"]
     for k, v in sorted(mm.system.params.items()):
         out.append(f"| ${lx(sp.Symbol(k))}$ | {v:.6g} |")
