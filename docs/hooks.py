@@ -1,26 +1,33 @@
-"""MkDocs hooks: fill the docs' placeholders from :mod:`kane` at build time.
+"""MkDocs hooks: fill the docs' placeholders from :mod:`kane`, :mod:`validation` and the CLI at build time.
 
 Placeholders (in any ``docs/*.md``)::
 
-    {{ latex:eq34 }}   display math: ``kane.claims.CLAIMS["eq34"].latex()``
-    {{ claim:eq34 }}   the claim's equation, statement, scope line, verdict table,
-                       counterexample (if refuted) and its corrected statement with its own
-                       equation, scope line, the verdict and cases of each clause, and table
-    {{ report }}       the validation report: summary line, one row per check, environment
+    {{ latex:eq34 }}   display math of the claim (:func:`validation.render.statement_latex`)
+    {{ claim:eq34 }}   the claim: statement, verdict and scope, its equation (compact vector
+                       form, the checked component form folded away), the checks, each
+                       counterexample as a table with one sentence of physics, and the
+                       corrected statement with its clauses and checks
+    {{ findings }}     Home: one row per claim of the paper: verdict, why, what holds instead
+    {{ summary }}      the summary line of the report this site was built from, and its source
+    {{ report }}       the validation report grouped by claim, refutations first
+    {{ normalisation }} how residuals and margins are normalised
+    {{ cli }}          the reference of every ``mdgs`` command, read from the typer app
+    {{ exit_codes }}   the exit-code table of every command
+    {{ results_status }} what the committed study holds: cells per model and scene, seeds
     {{ mjcf:PATH }}    Kane's equations of the MJCF file PATH (relative to the repository
-                       root) derived by ``kane.mjcf.from_mjcf``: coordinates, speeds, partial
-                       velocities, F_r, F*_r, mass matrix, forcing, parameters, and the
-                       residuals against MuJoCo, Pinocchio and sympy's KanesMethod
+                       root) derived by ``kane.mjcf.from_mjcf``, with the engine residuals
 
-The LaTeX comes from ``sympy.latex`` of the very expression the checks verify, so the pages
-cannot drift from the code. Verdicts come from the JSON report named by the environment
-variable ``MDGS_REPORT`` (written by ``mdgs validate --json PATH``); without it the hook runs
-``kane.claims.run_checks(quick=True)`` once per build. An unknown id or an unfilled
-placeholder stops the build.
+The LaTeX comes from the very sympy expressions the checks evaluate (the compact vector forms
+are compared with them at build time: a disagreement stops the build). Verdicts come from the
+JSON report named by the environment variable ``MDGS_REPORT`` (``mdgs validate --json PATH``);
+without it the hook runs ``kane.claims.run_checks(quick=True)`` once per build. An unknown id
+or an unfilled placeholder stops the build. The HTML also loses sphinx roles (``:func:``) that
+mkdocstrings leaves in docstrings (:func:`on_page_content`).
 """
 
 from __future__ import annotations
 
+import html
 import json
 import logging
 import os
@@ -31,8 +38,10 @@ from mkdocs.exceptions import PluginError
 
 log = logging.getLogger("mkdocs.hooks.mdgs")
 
-_PLACEHOLDER = re.compile(r"\{\{\s*(latex|claim):([A-Za-z0-9_.]+)\s*\}\}|\{\{\s*report\s*\}\}")
+_PLACEHOLDER = re.compile(r"\{\{\s*(latex|claim):([A-Za-z0-9_.]+)\s*\}\}|\{\{\s*(report|findings|summary|cli|exit_codes|normalisation|results_status)\s*\}\}")
 _state: dict = {}
+
+# --------------------------------------------------------------------------- sources
 
 
 def _claims() -> dict:
@@ -51,14 +60,16 @@ def _report() -> dict:
                     _state["report"] = json.load(f)
             except (OSError, json.JSONDecodeError) as e:
                 raise PluginError(f"MDGS_REPORT={path}: cannot read the report ({e}).") from e
-            _state["source"] = f"`mdgs validate --json` report `{os.path.basename(path)}`"
+            _state["source"] = f"the report <code>{html.escape(os.path.basename(path))}</code> written by <code>mdgs validate --json</code>"
+            _state["quick"] = False
         else:
             from kane.claims import run_checks
             from validation.report import build_report
 
             t0 = time.perf_counter()
             _state["report"] = build_report(run_checks(quick=True), _claims())
-            _state["source"] = "`mdgs validate --quick`, run while this site was built"
+            _state["source"] = "<code>mdgs validate --quick</code>, run while this site was built"
+            _state["quick"] = True
             log.info("mdgs: quick validation for the docs took %.1f s", time.perf_counter() - t0)
     return _state["report"]
 
@@ -66,70 +77,6 @@ def _report() -> dict:
 def on_pre_build(config, **kwargs) -> None:
     """Start every build afresh (``mkdocs serve`` rebuilds)."""
     _state.clear()
-
-
-def _fmt(x) -> str:
-    return "&ndash;" if x is None else f"{x:.3g}"
-
-
-def _escape(s: str) -> str:
-    """Plain text (statements, details) safe inside Markdown and its tables."""
-    s = str(s).replace("\\", "\\\\")
-    for ch in "*_`[]":
-        s = s.replace(ch, "\\" + ch)
-    return s.replace("|", "&#124;").replace("<", "&lt;").replace(">", "&gt;").replace("\n", " ")
-
-
-_BADGE = {"holds": "**holds**", "refuted": "**refuted**", "error": "*error*"}
-
-
-_LONG = 250  # characters of LaTeX above which a sum is broken over aligned lines
-_LINE = 140  # target characters of LaTeX per line
-
-
-def _display_latex(claim) -> str:
-    """``claim.latex()``; a long sum is split over lines of ``aligned`` (MathJax 3 does not
-    break lines), each line ``sympy.latex`` of consecutive terms of the same expression."""
-    import sympy as sp
-
-    full = claim.latex().strip()
-    expr = claim.expression() if callable(getattr(claim, "expression", None)) else None
-    if len(full) <= _LONG or not isinstance(expr, sp.Add):
-        return full
-    head = sp.latex(expr)
-    if not full.startswith(head):
-        return full
-    suffix = full[len(head) :]  # e.g. " \\le 0" for margins
-    lines, cur = [], ""
-    for i, term in enumerate(expr.as_ordered_terms()):
-        t = sp.latex(term)
-        if i and not t.startswith("-"):
-            t = "+ " + t
-        if cur and len(cur) + len(t) > _LINE:
-            lines.append(cur)
-            cur = ""
-        cur += (" " if cur else "") + t
-    lines.append(cur + suffix)
-    return "\\begin{aligned}\n& " + " \\\\\n& ".join(lines) + "\n\\end{aligned}"
-
-
-def _latex_block(claim_id: str) -> str:
-    claims = _claims()
-    if claim_id not in claims:
-        raise PluginError(f"docs placeholder names unknown claim '{claim_id}'; known: {', '.join(sorted(claims))}.")
-    tex = _display_latex(claims[claim_id])
-    if not tex:
-        return "*No single sympy expression: this claim is decided numerically (routes below).*"
-    return "$$\n" + tex + "\n$$"
-
-
-def _verdict_table(rows: list[dict]) -> str:
-    lines = ["| case | route | verdict | residual / margin | tolerance |", "|---|---|---|---:|---:|"]
-    for r in rows:
-        lines.append(
-            f"| {_escape(r['case'])} | {r['route']} | {_BADGE.get(r['verdict'], r['verdict'])} | {_fmt(r['residual'])} | {_fmt(r['tolerance'])} |"
-        )
-    return "\n".join(lines)
 
 
 def _summaries() -> dict:
@@ -142,99 +89,349 @@ def _summaries() -> dict:
     return {c["id"]: c for c in rep["claims"]}
 
 
-def _scope(claim_id: str) -> str:
-    c = _summaries().get(claim_id)
-    return f"**Scope:** {_escape(c['scope'])}." if c else "**Scope:** not run in this report."
+# --------------------------------------------------------------------------- HTML pieces
+
+_MATH = re.compile(r"\\\((.+?)\\\)")
 
 
-def _clause_table(claim_id: str) -> list[str]:
-    c = _summaries().get(claim_id)
-    if not c or len(c["clauses"]) < 2:
-        return []
-    lines = ["| clause | verdict | checked on |", "|---|---|---|"]
-    for cl in c["clauses"]:
-        cases = "<br>".join(_escape(x) for x in cl["cases"]) or "&ndash;"
-        lines.append(f"| {_escape(cl['text'])} | {_BADGE.get(cl['verdict'], cl['verdict'])} | {cases} |")
-    return lines
+def _h(text: str) -> str:
+    """Text with ``\\(...\\)`` math, ``<code>`` tags, `backticks` and **bold** as HTML."""
+    out, pos = [], 0
+    for m in _MATH.finditer(text):
+        out.append(_plain(text[pos:m.start()]))
+        out.append(f'<span class="arithmatex">\\({html.escape(m.group(1), quote=False)}\\)</span>')
+        pos = m.end()
+    out.append(_plain(text[pos:]))
+    return "".join(out)
 
 
-def _cex_line(r: dict) -> str:
-    from validation.report import counterexample_line
+def _plain(s: str) -> str:
+    s = html.escape(s, quote=False).replace("&lt;code&gt;", "<code>").replace("&lt;/code&gt;", "</code>")
+    s = re.sub(r"`([^`]+)`", r"<code>\1</code>", s)
+    s = re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", s)
+    return s.replace("*", "&#42;").replace("_", "&#95;")  # no Markdown emphasis inside admonitions
 
-    return counterexample_line(r["counterexample"], width=400)
+
+def _badge(verdict: str | None) -> str:
+    v = verdict or "not run"
+    return f'<span class="verdict v-{v.replace(" ", "-")}">{html.escape(v)}</span>'
 
 
-def _claim_block(claim_id: str) -> str:
+def _num(x) -> str:
+    return "&ndash;" if x is None else f"{x:.3g}"
+
+
+def _case(case: str) -> str:
+    """A case name: an identifier (``--case NAME``) as code, a description as text."""
+    s = re.sub(r"\b(\w+_\w+)\b", r"<code>\1</code>", html.escape(case))
+    return re.sub(r"\b(Psi|tau|omega|alpha|gamma|delta)\b", lambda m: f'<span class="arithmatex">\\(\\{m.group(1)}\\)</span>', s)
+
+
+def _table(head: list[str], rows: list[list[str]], cls: str = "") -> str:
+    """A raw HTML table (no blank lines, so Markdown leaves it alone)."""
+    h = "".join(f"<th>{c}</th>" for c in head)
+    body = "".join("<tr>" + "".join(f'<td data-label="{html.escape(re.sub(r"<[^>]+>", "", hd))}">{c}</td>'
+                                     for hd, c in zip(head, r, strict=True)) + "</tr>" for r in rows)
+    wrap = f' class="{cls}"' if cls else ""
+    return f"<div{wrap}><table><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table></div>"
+
+
+def _eq(claim) -> str:
+    return f"Eq. {claim.equation}" if claim.equation[:1] == "(" else claim.equation
+
+
+def _title(cid: str) -> str:
+    from validation.render import TEXT
+
+    return _h(TEXT[cid]["title"]) if cid in TEXT else html.escape(_claims()[cid].title)
+
+
+def _statement(cid: str) -> str:
+    from validation.render import TEXT
+
+    return _h(TEXT[cid]["statement"]) if cid in TEXT else html.escape(_claims()[cid].statement)
+
+
+def _scope(cid: str) -> str:
+    from validation.render import scope_tex
+
+    c = _summaries().get(cid)
+    line = scope_tex(c) if c else None
+    return _h(line) if line else "not checked in this report"
+
+
+# --------------------------------------------------------------------------- equations
+
+_NARROW = 28  # glyphs: a relation wider than this is written over two lines (390 px column)
+
+
+def _display(cid: str) -> str:
+    """``$$...$$`` of a claim's statement; lhs and rhs on two lines when wide."""
+    import sympy as sp
+
+    from validation import render
+
     claims = _claims()
-    if claim_id not in claims:
-        raise PluginError(f"docs placeholder names unknown claim '{claim_id}'; known: {', '.join(sorted(claims))}.")
-    c = claims[claim_id]
-    rows = [r for r in _report()["checks"] if r["id"] == claim_id]
-    out = [f"**{_escape(c.title)}** &mdash; Eq. {c.equation}. {_escape(c.statement)}", "", _scope(claim_id), "", _latex_block(claim_id), ""]
-    if rows:
-        out += [_verdict_table(rows), ""]
+    if cid not in claims:
+        raise PluginError(f"docs placeholder names unknown claim '{cid}'; known: {', '.join(sorted(claims))}.")
+    c = claims[cid]
+    if cid in render.COMPACT:
+        lhs, rhs = render.COMPACT[cid]
+        rel = "=" if cid.startswith("eq30") else r"\le"
+        lt, rt = render.latex(lhs), render.latex(rhs)
     else:
-        out += ["*Not checked in this report.*", ""]
+        e = c.expression()
+        if e is None:
+            return "*No single sympy expression: this claim is decided numerically (the checks below).*"
+        if not isinstance(e, sp.Eq):
+            return "$$\n" + render.latex(e) + "\n$$"
+        rel, lt, rt = "=", render.latex(e.lhs), render.latex(e.rhs)
+    if render._visible(lt) + render._visible(rt) <= _NARROW:
+        return f"$$\n{lt} {rel} {rt}\n$$"
+    return f"$$\n\\begin{{aligned}}\n&{lt}\n\\\\ &\\quad {rel} {rt}\n\\end{{aligned}}\n$$"
+
+
+def _expanded(cid: str) -> list[str]:
+    """The folded admonition with the component form the checks evaluate (compact claims)."""
+    from validation import render
+
+    if cid not in render.COMPACT:
+        return []
+    worst = render.compact_agrees(cid)
+    if worst > 1e-12:  # round-off of ~100 products is ~1e-15
+        raise PluginError(f"{cid}: the compact form on the docs differs from the checked expression by {worst:.2e}.")
+    c = _claims()[cid]
+    suffix = "" if cid.startswith("eq30") else r" \le 0"
+    what = ("the difference \\(\\Psi(s\\,\\mathbf r) - s\\,\\Psi(\\mathbf r)\\) that the symbolic check simplifies"
+            if cid == "eq30" else "\\(\\Psi(s\\,\\mathbf r)\\) minus the closed form, which the symbolic check simplifies to 0"
+            if cid == "eq30.corrected" else "the margin \\(\\text{lhs} - \\text{rhs}\\) that CasADi maximises and hypothesis samples")
+    expr = c.expression() if cid == "eq30" else (render.expand_compact(cid) if cid == "eq30.corrected" else c.expression())
+    lines = render.expanded_lines(expr, suffix, label=r"\text{margin}" if suffix else r"\Delta")
+    body = "\\begin{aligned}\n" + " \\\\\n".join(lines) + "\n\\end{aligned}"
+    return [f'??? info "Written out in components ({len(lines)} lines)"', "",
+            f"    This is {what} (its parts \\(x_k\\), \\(z_k\\) are written out below it), for \\(L = 4\\) point masses \\(m_l\\) at offsets \\((r_{{l,x}}, r_{{l,y}}, r_{{l,z}})\\) "
+            "with forces \\((F_{l,x}, F_{l,y}, F_{l,z})\\) and the rotational speed about \\(\\mathbf e_z\\). "
+            f"The compact form above expands to it (largest relative difference {worst:.0e} on random states, checked when this page was built).",
+            "", "    $$", *("    " + x for x in body.splitlines()), "    $$", ""]
+
+
+# --------------------------------------------------------------------------- claim blocks
+
+
+def _checks_table(rows: list[dict]) -> str:
+    """One row per check, refuted first; a clause column when the checks try several clauses."""
+    from validation.render import TEXT
+
+    rows = sorted(rows, key=lambda r: {"refuted": 0, "error": 1}.get(r["verdict"], 2))
+    clauses = {r.get("clause") or "" for r in rows}
+    head = ["case", "route", "verdict", "residual or relative margin", "tolerance"]
+    body = [[_case(r["case"]), html.escape(r["route"]), _badge(r["verdict"]), _num(r["residual"]), _num(r["tolerance"])]
+            for r in rows]
+    if len(clauses) > 1:
+        texts = {r["id"]: TEXT.get(r["id"], {}).get("clauses", {}) for r in rows}
+        head.insert(0, "clause")
+        for b, r in zip(body, rows, strict=True):
+            t = texts[r["id"]].get(r.get("clause") or "", r.get("clause") or "")
+            b.insert(0, _h(t.split(")", 1)[0] + ")" if t.startswith("(") else t))
+    return _table(head, body, "checks")
+
+
+def _cex_block(r: dict, indent: str = "") -> list[str]:
+    from validation.render import counterexample_view
+
+    v = counterexample_view(r)
+    if v is None:
+        return []
+    rows = [[_h(k), _h(x)] for k, x in v["quantities"]] + [[f"<strong>{_h(k)}</strong>", f"<strong>{_h(x)}</strong>"] for k, x in v["sides"]]
+    out = [f'!!! failure "Counterexample: {html.escape(r["case"])} ({r["route"]})"', "",
+           f"    {_h(v['sentence'])}", "", "    " + _table(["quantity", "value"], rows, "cex"), "",
+           f"    Numbers: {_h(v['replay'])}; rounded to 4 digits, round-off shown as 0. "
+           f"Replay: <code>mdgs validate --json r.json --check {html.escape(r['id'])}</code>, then "
+           f"<code>mdgs validate --replay r.json --check {html.escape(r['id'])}</code>.", ""]
+    return [indent + x if x else "" for x in out]
+
+
+def _claim_head(cid: str) -> list[str]:
+    c = _claims()[cid]
+    summ = _summaries().get(cid)
+    return [f'<a id="{cid.replace(".", "-")}"></a>', "",
+            f"<p><strong>{_eq(c)}: {_title(cid)}.</strong> {_statement(cid)}</p>", "",
+            f'<p class="scope">{_badge(summ["verdict"] if summ else None)} <strong>Scope:</strong> {_scope(cid)}.</p>', ""]
+
+
+def _clause_table(cid: str) -> str | None:
+    from validation.render import TEXT
+
+    c = _summaries().get(cid)
+    if not c or len(c["clauses"]) < 2:
+        return None
+    texts = TEXT.get(cid, {}).get("clauses", {})
+    return _table(["clause", "verdict", "checked on"],
+                  [[_h(texts.get(cl["key"], cl["text"])), _badge(cl["verdict"]),
+                    "<br>".join(_case(x) for x in cl["cases"]) or "&ndash;"] for cl in c["clauses"]], "clauses")
+
+
+def _claim_block(cid: str) -> str:
+    claims = _claims()
+    if cid not in claims:
+        raise PluginError(f"docs placeholder names unknown claim '{cid}'; known: {', '.join(sorted(claims))}.")
+    c = claims[cid]
+    rows = [r for r in _report()["checks"] if r["id"] == cid]
+    out = [*_claim_head(cid), _display(cid), "", *_expanded(cid)]
+    out += [_checks_table(rows), ""] if rows else ["*Not checked in this report.*", ""]
     for r in rows:
-        if r["verdict"] == "refuted" and r["counterexample"]:
-            out += [f"Counterexample ({_escape(r['case'])}, {r['route']}): `{_cex_line(r)}`", ""]
+        if r["verdict"] == "refuted":
+            out += _cex_block(r)
         elif r["verdict"] == "error":
-            out += [f"Could not decide on {_escape(r['case'])}: {_escape(r['detail'])}", ""]
-    cid = getattr(c, "corrected_id", None)
-    if cid and cid in claims:
-        cc = claims[cid]
-        crow = [r for r in _report()["checks"] if r["id"] == cid]
-        out += [
-            f'!!! note "Corrected statement ({cid}): {_escape(cc.title)}"',
-            "",
-            f"    {_escape(cc.statement)}",
-            "",
-            f"    {_scope(cid)}",
-            "",
-            *("    " + line for line in _latex_block(cid).splitlines()),
-            "",
-        ]
-        clause_rows = _clause_table(cid)
-        if clause_rows:
-            out += ["    " + line for line in clause_rows] + [""]
-        if crow:
-            out += ["    " + line for line in _verdict_table(crow).splitlines()]
-            out.append("")
+            out += [f"<p>Could not decide on {_case(r['case'])}: {html.escape(r['detail'])}</p>", ""]
+    cc = c.corrected_id
+    if cc and cc in claims:
+        crow = [r for r in _report()["checks"] if r["id"] == cc]
+        inner = [*_claim_head(cc), _display(cc), "", *_expanded(cc)]
+        ct = _clause_table(cc)
+        if ct:
+            inner += [ct, ""]
+        inner += [_checks_table(crow), ""] if crow else ["*Not checked in this report.*", ""]
+        for r in crow:
+            if r["verdict"] == "refuted":
+                inner += _cex_block(r)
+        out += [f'!!! success "What holds instead: {_eq(claims[cc])}"', ""] + ["    " + x if x else "" for x in "\n".join(inner).splitlines()]
     return "\n".join(out)
 
 
-def _report_block() -> str:
+# --------------------------------------------------------------------------- pages
+
+
+def _summary_block() -> str:
     from validation.report import summary_line
 
     rep = _report()
-    claims = _claims()
-    out = [f"**{summary_line(rep['summary'])}** (from {_state.get('source', 'the report')}).", ""]
-    out.append("| claim | case | route | verdict | residual / margin | tolerance |")
-    out.append("|---|---|---|---|---:|---:|")
-    for r in rep["checks"]:
-        eq = getattr(claims.get(r["id"]), "equation", "")
-        out.append(
-            f"| `{r['id']}` {eq}<br>{_escape(r['claim'])} | {_escape(r['case'])} | {r['route']} | "
-            f"{_BADGE.get(r['verdict'], r['verdict'])} | {_fmt(r['residual'])} | {_fmt(r['tolerance'])} |"
-        )
-    out += ["", "### Scope of each verdict", ""]
-    out += [f"- `{c['id']}` {_escape(c['title'])}: {_escape(c['scope'])}." for c in _summaries().values()]
-    notes = []
-    for r in rep["checks"]:
-        if r["verdict"] == "refuted":
-            note = f"- `{r['id']}` on {_escape(r['case'])} ({r['route']}): counterexample `{_cex_line(r) or 'none recorded'}`"
-            if r["corrected"]:
-                cc = r["corrected"]
-                note += f"; corrected `{cc['id']}`: {_escape(cc['statement'] or '')} ({_BADGE.get(cc['verdict'], 'not run')})"
-            notes.append(note)
-        elif r["verdict"] == "error":
-            notes.append(f"- `{r['id']}` on {_escape(r['case'])} ({r['route']}) could not be decided: {_escape(r['detail'])}")
-    if notes:
-        out += ["", "### Refuted and undecided checks", "", *notes]
-    env = rep.get("environment", {})
-    out += ["", "### Environment", "", "| package | version |", "|---|---|"]
-    out += [f"| {k} | {v or 'not installed'} |" for k, v in env.items()]
+    what = "the quick subset" if _state.get("quick") else "the checks"
+    return f"<p><code>{summary_line(rep['summary'])}</code> &mdash; {what}, from {_state.get('source', 'the report')}.</p>"
+
+
+_PAPER_ORDER = ("eq3", "lemmaA1", "eq17", "eq19", "eq23", "eq11", "eq30", "eq34", "eq35", "eq36", "eq37", "eq12", "eq15")
+
+
+def _findings_block() -> str:
+    from validation.render import WHY
+
+    claims, summ = _claims(), _summaries()
+    rows = []
+    for cid in _PAPER_ORDER:
+        if cid not in summ:
+            continue
+        c, s = claims[cid], summ[cid]
+        why = (_h(WHY[cid]) + " " if s["verdict"] == "refuted" and cid in WHY else "") + f"<em>Scope:</em> {_scope(cid)}."
+        cc = c.corrected_id
+        instead = "&ndash;"
+        if cc and cc in claims:
+            instead = f'<a href="theory/#{cc.replace(".", "-")}">{_eq(claims[cc])}</a>: {_title(cc)} {_badge(summ.get(cc, {}).get("verdict"))}'
+        rows.append([f'<a href="theory/#{cid}">{_eq(c)}</a> {_title(cid)}', _badge(s["verdict"]), why, instead])
+    return _table(["claim of the paper", "verdict", "why", "what holds instead"], rows, "stack findings")
+
+
+def _report_block() -> str:
+    from validation.report import environment
+
+    claims, summ, rep = _claims(), _summaries(), _report()
+    paper = [cid for cid in summ if not cid.endswith(".corrected")]
+    rank = {"refuted": 0, "error": 1, "holds": 2}
+    paper.sort(key=lambda cid: (rank.get(summ[cid]["verdict"], 3), _PAPER_ORDER.index(cid) if cid in _PAPER_ORDER else 99))
+    out = [_summary_block(), ""]
+    for cid in paper:
+        group = [cid] + [x for x in (claims[cid].corrected_id,) if x and x in summ] if cid in claims else [cid]
+        for g in group:
+            c = claims.get(g)
+            rows = [r for r in rep["checks"] if r["id"] == g]
+            title = _title(g) if c else html.escape(g)
+            out += [f"### {_eq(c) if c else g} &mdash; {summ[g]['verdict']}", "",
+                    f"<p><strong>{title}.</strong> {_badge(summ[g]['verdict'])} <strong>Scope:</strong> {_scope(g)}. "
+                    f'<a href="../theory/#{g.replace(".", "-")}">Derivation and counterexamples</a>.</p>', "",
+                    _checks_table(rows), ""]
+    env = rep.get("environment") or environment()
+    out += ["### Environment", "", _table(["package", "version"], [[html.escape(k), html.escape(str(v or "not installed"))] for k, v in env.items()]), ""]
     return "\n".join(out)
+
+
+def _normalisation_block() -> str:
+    from validation.render import NORMALISATION
+
+    return _h(NORMALISATION)
+
+
+EXIT_CODES = (
+    (0, "success; for <code>validate</code>: every check holds"),
+    (1, "<code>validate</code> only: a claim is refuted &mdash; a finding, not a failure (the expected outcome on the paper's claims)"),
+    (2, "bad input or usage: one sentence on stderr naming the input and the fix, nothing half-written; for <code>validate</code> also a check that could not decide"),
+    (3, "internal error (a bug: please report it with the command line)"),
+    (130, "interrupted (Ctrl-C); rerun the same command to resume where it can"),
+)
+
+
+def _exit_codes_block() -> str:
+    return _table(["exit code", "meaning"], [[f"<code>{c}</code>", t] for c, t in EXIT_CODES], "exit-codes")
+
+
+def _cli_block() -> str:
+    """Every command of the typer app: usage, what it does, every option (read from the app)."""
+    import typer
+
+    from mdgs.cli import app
+
+    group = typer.main.get_command(app)
+    root = group.make_context("mdgs", [], resilient_parsing=True)
+    out = []
+    for name in sorted(group.commands):
+        cmd = group.commands[name]
+        ctx = cmd.make_context(name, [], parent=root, resilient_parsing=True)
+        help_text = (cmd.help or "").strip()
+        first, _, rest = help_text.partition("\n\n")
+        out += [f"## mdgs {name}", "", _plain(first), "", "```text", cmd.get_usage(ctx), "```", ""]
+        if rest.strip():
+            out += [_plain(" ".join(rest.split())), ""]
+        rows = []
+        for p in cmd.params:
+            if getattr(p, "hidden", False):
+                continue
+            names = ", ".join(f"<code>{html.escape(o)}</code>" for o in [*p.opts, *p.secondary_opts])
+            if getattr(p, "is_flag", False):
+                value = "flag"
+            else:
+                value = html.escape(p.metavar or (p.name.upper() if not p.opts[0].startswith("-") else type(p.default).__name__
+                                                  if p.default is not None else "TEXT"))
+            default = "&ndash;" if p.default in (None, False, ()) or p.required else f"<code>{html.escape(str(p.default))}</code>"
+            if not p.opts[0].startswith("-"):
+                names = f"<code>{html.escape(p.name.upper())}</code>" + (" (required)" if p.required else " (optional)")
+            rows.append([names, value, default, _plain(getattr(p, "help", None) or "")])
+        out += [_table(["option", "value", "default", "what it does"], rows, "stack options"), ""]
+    return "\n".join(out)
+
+
+def _results_status(root: str) -> str:
+    """Which cells the committed study (``docs/results/small/results*.jsonl``) holds, per model."""
+    import glob
+
+    lines = []
+    for f in sorted(glob.glob(os.path.join(root, "docs", "results", "small", "results*.jsonl"))):
+        with open(f, encoding="utf-8") as fh:
+            lines += [json.loads(x) for x in fh if x.strip()]
+    if not lines:
+        return "<p><strong>No results are committed yet</strong>: the tables and charts below appear once the study has finished its first cells.</p>"
+    models: dict = {}
+    for d in lines:
+        m = models.setdefault((d.get("kind") != "reference", d["model"]), {"scenes": set(), "seeds": set(), "n": 0})
+        m["scenes"].add(d["scene"])
+        m["seeds"].add(d["seed"])
+        m["n"] += 1
+    rows = [[f"<code>{html.escape(name)}</code>", "learned" if learned else "reference", str(v["n"]),
+             ", ".join(sorted(v["scenes"])), ", ".join(str(x) for x in sorted(v["seeds"]))]
+            for (learned, name), v in sorted(models.items())]
+    return (f"<p>The committed study holds <strong>{len(lines)} finished cells</strong>, read when this site was built:</p>\n"
+            + _table(["model", "kind", "cells", "scenes", "seeds"], rows, "stack"))
+
+
+# --------------------------------------------------------------------------- MJCF
 
 
 _MJCF = re.compile(r"\{\{\s*mjcf:([A-Za-z0-9_./-]+)\s*\}\}")
@@ -256,21 +453,36 @@ def _mjcf_block(rel: str, root: str) -> str:
     def lx(e) -> str:
         return sp.latex(e)
 
+    def rows(mat, name: str) -> str:
+        """One entry per speed, each over lines of about 30 glyphs (a phone's column)."""
+        from validation.render import _split, _terms
+
+        out = []
+        n = mat.shape[1]
+        for k, x in enumerate(mat):
+            r = f"{k // n + 1}{k % n + 1}" if n > 1 else f"{k + 1}"
+            terms = [sp.latex(t) for t in _terms(x)]
+            terms = [t if i == 0 or t.startswith("-") else "+ " + t for i, t in enumerate(terms)]
+            body = _split(terms, 30)
+            out.append(f"{name}_{{{r}}} &= {body[0]}")
+            out += [f"&\\quad {b}" for b in body[1:]]
+        return "\\begin{aligned}\n" + " \\\\\n".join(out) + "\n\\end{aligned}"
+
     with open(path, encoding="utf-8") as f:
         xml = f.read()
     out = [f"```xml\n{xml.strip()}\n```", "", "**Coordinates and speeds** (MuJoCo `qpos` / `qvel` order):", "",
-           "| coordinate | speed | dq/dt |", "|---|---|---|"]
+           "| coordinate | speed | rate |", "|---|---|---|"]
     for qq, uu, qd in zip(sm.q, sm.u, sm.qdot, strict=False):
         out.append(f"| ${lx(qq)}$ | ${lx(uu)}$ | ${lx(qd)}$ |")
-    out += ["", "**Partial velocities** of each mass centre $V$ and partial angular velocities $W$ "
-            "(column $r$: speed $u_r$; components in the body's own frame):", ""]
+    out += ["", "**Partial velocities** of each mass centre \\(V\\) and partial angular velocities \\(W\\) "
+            "(column \\(r\\): speed \\(u_r\\); components in the body's own frame):", ""]
     for name, V, W in mm.partial_velocities:
-        out.append(f"- body `{name}`: $V = {lx(V.applyfunc(sp.trigsimp))}$, $W = {lx(W)}$")
-    out += ["", "**Generalized active forces** $F_r$ (gravity, damping, springs, actuator force symbols):", "",
-            f"$$F_r = {lx(sm.fr)}$$", "", "**Generalized inertia forces** $F^*_r$ (shown after `trigsimp`):", "",
-            f"$$F^*_r = {lx(sm.frstar.applyfunc(sp.trigsimp))}$$", "",
-            "**Mass matrix and forcing**, $M \\dot u = f$:", "",
-            f"$$M = {lx(sm.mass_matrix.applyfunc(sp.trigsimp))}, \\quad f = {lx(sm.forcing)}$$", "",
+        out += [f"- body `{name}`:", "", "    $$", f"    V = {lx(V.applyfunc(sp.trigsimp))}", "    $$", "", "    $$", f"    W = {lx(W)}", "    $$", ""]
+    out += ["**Generalized active forces** \\(F_r\\) (gravity, damping, springs, actuator force symbols), one line per speed:", "",
+            "$$", rows(sm.fr, "F"), "$$", "", "**Generalized inertia forces** \\(F^*_r\\) (after `trigsimp`):", "",
+            "$$", rows(sm.frstar.applyfunc(sp.trigsimp), "F^*"), "$$", "",
+            "**Mass matrix and forcing**, \\(M \\dot u = f\\), the mass matrix row by row:", "",
+            "$$", rows(sm.mass_matrix.applyfunc(sp.trigsimp), "M"), "$$", "", "$$", rows(sm.forcing, "f"), "$$", "",
             "**Parameters** (MuJoCo's compiled values, SI units):", "", "| symbol | value |", "|---|---|"]
     for k, v in sorted(mm.system.params.items()):
         out.append(f"| ${lx(sp.Symbol(k))}$ | {v:.6g} |")
@@ -284,15 +496,45 @@ def _mjcf_block(rel: str, root: str) -> str:
     return "\n".join(out)
 
 
+# --------------------------------------------------------------------------- hooks
+
+
 def on_page_markdown(markdown: str, page, config, files, **kwargs) -> str:
     """Replace the placeholders of one page (see the module docstring)."""
 
     def fill(m: re.Match) -> str:
-        kind, claim_id = m.group(1), m.group(2)
-        if kind is None:
-            return _report_block()
-        return _latex_block(claim_id) if kind == "latex" else _claim_block(claim_id)
+        kind, cid, name = m.group(1), m.group(2), m.group(3)
+        if kind == "latex":
+            return _display(cid)
+        if kind == "claim":
+            return _claim_block(cid)
+        if name == "results_status":
+            return _results_status(root)
+        return {"report": _report_block, "findings": _findings_block, "summary": _summary_block, "cli": _cli_block,
+                "exit_codes": _exit_codes_block, "normalisation": _normalisation_block}[name]()
 
     root = os.path.dirname(os.path.abspath(config["config_file_path"]))
     markdown = _MJCF.sub(lambda m: _mjcf_block(m.group(1), root), markdown)
     return _PLACEHOLDER.sub(fill, markdown)
+
+
+_ROLE = re.compile(r":(?:py:)?(?:func|class|mod|meth|data|attr|exc|obj|const|math):(?=<code>|`|<span)")
+
+
+_SUP = str.maketrans("0123456789-", "⁰¹²³⁴⁵⁶⁷⁸⁹⁻")
+_CARET = re.compile(r"\b([A-Za-z])\^(-?\d)\b")
+_KEEP = re.compile(r'<pre\b.*?</pre>|<code\b.*?</code>|<script\b.*?</script>|<(span|div) class="arithmatex">.*?</\1>', re.S)
+
+
+def on_page_content(html_text: str, page, config, files, **kwargs) -> str:
+    """Drop the sphinx roles (``:func:``) that docstrings carry before their code span, and
+    write the carets of units in docstrings and help texts (``m^2``) as superscripts, outside
+    code and math."""
+    html_text = _ROLE.sub("", html_text)
+    out, pos = [], 0
+    for m in _KEEP.finditer(html_text):
+        out.append(_CARET.sub(lambda c: c.group(1) + c.group(2).translate(_SUP), html_text[pos:m.start()]))
+        out.append(m.group(0))
+        pos = m.end()
+    out.append(_CARET.sub(lambda c: c.group(1) + c.group(2).translate(_SUP), html_text[pos:]))
+    return "".join(out)

@@ -18,9 +18,11 @@ import numpy as np
 from kane import codegen
 from kane.element_claims import N_POINTS, element_model, margin_expression
 
-__all__ = ["REL_TOL", "Sample", "evaluate_margin", "hypothesis_search", "casadi_search"]
+__all__ = ["REL_TOL", "SCALE_TEXT", "Sample", "evaluate_margin", "hypothesis_search", "casadi_search"]
 
 REL_TOL = 1e-9
+#: the normalisation of every element margin, as the replay prints it (:meth:`Sample.scale`)
+SCALE_TEXT = "tau sum_l |F_l| + M tau^2 (|alpha| + |omega|^2 + 1)"
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,7 @@
 
 A counterexample is a JSON-ready dict with ``claim_id`` and ``kind``:
 
-* ``element``: a point-mass element state (masses, offsets, forces, omega, alpha). The
+* ``element``: a point-mass element state (``masses``, ``offsets``, ``forces``, ``omega``, ``alpha``). The
   element is rebuilt as a MuJoCo body of small spheres; MuJoCo and Pinocchio each supply
   its mass, inertia and the resultant/moment of the forces (MuJoCo: ``mj_applyFT``), and
   both sides of the claim are evaluated from those engine quantities. This is an

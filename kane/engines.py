@@ -28,6 +28,13 @@ class ReplayReport:
     kind: str
     rows: list = field(default_factory=list)  # (engine, lhs, rhs)
     note: str = ""
+    #: the normalisation of the check's margin: the report lists (lhs - rhs) / scale
+    scale: float | None = None
+    scale_text: str = ""
+
+    def relative(self, lhs: float, rhs: float) -> float | None:
+        """(lhs - rhs) / scale: the number the validation report lists (``None`` without a scale)."""
+        return None if not self.scale else (lhs - rhs) / self.scale
 
     @property
     def refuted(self) -> bool:
@@ -36,7 +43,11 @@ class ReplayReport:
     def __str__(self) -> str:
         lines = [f"claim {self.claim_id} ({self.kind}): the claim says lhs <= rhs"]
         for eng, lhs, rhs in self.rows:
-            lines.append(f"  {eng:10s} lhs = {lhs:.10g}   rhs = {rhs:.10g}   lhs - rhs = {lhs - rhs:.3g}")
+            rel = self.relative(lhs, rhs)
+            lines.append(f"  {eng:10s} lhs = {lhs:.10g}   rhs = {rhs:.10g}   lhs - rhs = {lhs - rhs:.3g}"
+                         + ("" if rel is None else f"   (lhs - rhs) / scale = {rel:.3g}"))
+        if self.scale:
+            lines.append(f"  scale = {self.scale_text} = {self.scale:.4g}; the report's margin is (lhs - rhs) / scale")
         lines.append(f"  => {'refuted' if self.refuted else 'holds'} at this point" + (f"; {self.note}" if self.note else ""))
         return "\n".join(lines)
 
@@ -106,8 +117,12 @@ def replay_element(cex: dict) -> ReplayReport:
     I_pin = np.asarray(inert.inertia)
     rows.append(("pinocchio", *_element_sides(cex["claim_id"], float(inert.mass), I_pin, F.sum(0),
                                               np.cross(offs - np.asarray(inert.lever), F).sum(0), tau, F_abs, w, a)))
+    from kane.adversarial import SCALE_TEXT, Sample
+
+    scale = Sample(masses, offs, F, w, a).scale()
     return ReplayReport(cex["claim_id"], "element", rows,
-                        f"MuJoCo: body of spheres; Pinocchio: sum of pin.Inertia point masses; spheres of radius {_SPHERE} m add <= {0.4 * _SPHERE**2:.0e} m to inertia")
+                        f"MuJoCo: body of spheres; Pinocchio: sum of pin.Inertia point masses; spheres of radius {_SPHERE} m add <= {0.4 * _SPHERE**2:.0e} m to inertia",
+                        scale, SCALE_TEXT)
 
 
 def replay_geom(cex: dict) -> ReplayReport:
@@ -120,4 +135,5 @@ def replay_geom(cex: dict) -> ReplayReport:
     tau = float(np.hypot(Rr, hh))
     k = 1.0 if cex["claim_id"].endswith(".corrected") else 0.4
     return ReplayReport(cex["claim_id"], "mujoco_geom", [("mujoco", float(I.max()), k * mass * tau**2)],
-                        f"{cex['geom']} element: MuJoCo inertia {np.round(I, 8).tolist()} kg m^2, tau = {tau:.5g} m")
+                        f"{cex['geom']} element: MuJoCo inertia {np.round(I, 8).tolist()} kg m^2, tau = {tau:.5g} m",
+                        mass * tau**2, "M tau^2")

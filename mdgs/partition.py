@@ -1,7 +1,7 @@
 """Element partition of a MuJoCo model's rigid bodies (paper section 3.2, Fig. 2).
 
 Each rigid body is divided into finite-element-like cells; each cell becomes a graph
-node at its centroid carrying its volume, mass (uniform density), largest radius tau
+node at its centroid carrying its volume, mass (uniform density), largest radius ``tau``
 and inertia about its centroid. Cells of the same body that share a face are adjacent.
 
 Cells per geom type (all in the geom frame, then moved to the body frame):

@@ -3,6 +3,7 @@ all filled from ``kane`` and every Python example on its pages runs."""
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -34,42 +35,138 @@ def test_every_page_has_an_executed_example_or_none_claimed():
     assert len(list(_python_blocks())) >= 3
 
 
-@pytest.mark.skipif(
-    shutil.which("mkdocs") is None and not (Path(sys.executable).parent / "mkdocs").exists(),
-    reason="mkdocs not installed",
-)
-def test_mkdocs_build_strict(tmp_path):
-    site = tmp_path / "site"
+_MKDOCS = shutil.which("mkdocs") is not None or (Path(sys.executable).parent / "mkdocs").exists()
+_SUMMARY = re.compile(r"\d+ checks?: \d+ holds?, \d+ refuted, \d+ errors?")
+
+
+@pytest.fixture(scope="module")
+def live_quick(tmp_path_factory):
+    """A live ``mdgs validate --quick`` run: its last line, and its JSON report."""
+    out = tmp_path_factory.mktemp("quick") / "report.json"
+    run = subprocess.run([sys.executable, "-m", "mdgs.cli", "validate", "--quick", "--json", str(out)],
+                         cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 1, run.stderr[-2000:]  # 1: the paper's claims are refuted (a finding)
+    return run.stdout.strip().splitlines()[-1], out
+
+
+@pytest.fixture(scope="module")
+def site(live_quick, tmp_path_factory):
+    """The site built once, strictly, from the live quick report (no second validation run)."""
+    if not _MKDOCS:
+        pytest.skip("mkdocs not installed")
+    site = tmp_path_factory.mktemp("site") / "site"
     run = subprocess.run(
         [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(site)],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=600,
-        env={**__import__("os").environ, "NO_MKDOCS_2_WARNING": "1"},
+        cwd=ROOT, capture_output=True, text=True, timeout=600,
+        env={**os.environ, "NO_MKDOCS_2_WARNING": "1", "MDGS_REPORT": str(live_quick[1])},
     )
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
-    theory = (site / "theory" / "index.html").read_text(encoding="utf-8")
-    report = (site / "report" / "index.html").read_text(encoding="utf-8")
-    for html in (theory, report, (site / "index.html").read_text(encoding="utf-8")):
-        assert "{{" not in html, "an unfilled placeholder reached the site"
-    # every claim of the derivation is rendered from kane's sympy expression, next to a verdict
+    return site, run.stdout + run.stderr
+
+
+def _pages(site: Path) -> dict[str, str]:
+    return {str(p.relative_to(site)): p.read_text(encoding="utf-8") for p in sorted(site.rglob("index.html"))
+            if "assets" not in p.parts and p.parent.name != "search"}
+
+
+def _prose(html: str) -> str:
+    """The text a reader sees outside code and rendered math."""
+    body = html.split('<article', 1)[-1].split("</article>", 1)[0]
+    for tag in ("pre", "code", "script", "style"):
+        body = re.sub(rf"<{tag}\b.*?</{tag}>", " ", body, flags=re.S)
+    body = re.sub(r'<(span|div) class="arithmatex">.*?</\1>', " ", body, flags=re.S)
+    body = re.sub(r"<[^>]+>", " ", body)
+    return __import__("html").unescape(body)
+
+
+def test_mkdocs_build_strict(site):
+    site, _ = site
+    pages = _pages(site)
+    for name, html in pages.items():
+        assert "{{" not in html, f"an unfilled placeholder reached {name}"
+    theory = pages["theory/index.html"]
     from kane.claims import CLAIMS
 
-    for claim_id in (
-        "eq3",
-        "eq17",
-        "eq19",
-        "eq11",
-        "eq30",
-        "eq34",
-        "eq35",
-        "eq36",
-        "eq37",
-        "eq12",
-        "eq15",
-    ):
-        assert f"Eq. {CLAIMS[claim_id].equation}." in theory, claim_id
-    assert theory.count('class="arithmatex"') >= 11
-    assert re.search(r"\d+ checks?: \d+ holds?, \d+ refuted, \d+ errors?", report)
+    for claim_id in ("eq3", "eq17", "eq19", "eq23", "eq11", "eq30", "eq34", "eq35", "eq36", "eq37", "eq12", "eq15"):
+        assert f"Eq. {CLAIMS[claim_id].equation}:" in theory, claim_id
+        assert f'id="{claim_id}"' in theory, claim_id
+    assert theory.count('class="arithmatex"') >= 40
     assert (site / "javascripts" / "mathjax" / "tex-chtml-full.js").is_file()
+
+
+def test_home_has_the_findings_table_and_the_exit_code(site):
+    home = _pages(site[0])["index.html"]
+    from kane.claims import CLAIMS
+
+    for cid in ("eq23", "eq11", "eq30", "eq34", "eq35", "eq36", "eq37", "eq12"):  # refuted on the quick run
+        row = re.search(rf'href="theory/#{re.escape(cid)}".*?</tr>', home, re.S)
+        assert row and "v-refuted" in row.group(0), cid
+        assert CLAIMS[cid].corrected_id.replace(".", "-") in row.group(0), cid
+    assert "exit code is 1" in home
+
+
+def test_no_stale_summary_line(site, live_quick):
+    """Every summary line on the site is the live quick run's; none is typed into the sources."""
+    line, _ = live_quick
+    seen = []
+    for name, html in _pages(site[0]).items():
+        for m in _SUMMARY.findall(html):
+            assert m == line, f"{name} shows '{m}', a live quick run prints '{line}'"
+            seen.append(name)
+    assert "index.html" in seen and "report/index.html" in seen
+    for src in [*DOCS.glob("*.md"), *(ROOT / "kane").rglob("*.py"), *(ROOT / "validation").rglob("*.py"),
+                *(ROOT / "mdgs").rglob("*.py")]:
+        found = _SUMMARY.findall(src.read_text(encoding="utf-8"))
+        assert not found, f"{src.relative_to(ROOT)} types a summary line {found}: generate it instead"
+    readme = _SUMMARY.findall((ROOT / "README.md").read_text(encoding="utf-8"))
+    assert all(m == line or m == _README_FULL for m in readme), readme
+
+
+_README_FULL = "125 checks: 105 hold, 20 refuted, 0 errors"  # checked by test_readme_full_run_line (slow)
+
+
+@pytest.mark.slow
+def test_readme_full_run_line():
+    run = subprocess.run([sys.executable, "-m", "mdgs.cli", "validate"], cwd=ROOT, capture_output=True, text=True, timeout=1800)
+    assert run.stdout.strip().splitlines()[-1] == _README_FULL
+    assert _README_FULL in (ROOT / "README.md").read_text(encoding="utf-8")
+
+
+# ASCII math the issue found beside rendered math: Greek names, x_{...} and x_y subscripts,
+# <= and >=, sum_i, carets. Code, rendered math and identifiers in <code> are exempt.
+_ASCII_MATH = re.compile(r"\b(tau|omega|gamma|alpha|Psi)\b|\b[A-Za-z]+_\{|\bsum_|<=|>=|\b[A-Za-z]\^[-{0-9]|\b[A-Za-z]_[A-Za-z0-9]\b")
+
+
+def test_no_ascii_math_outside_code(site):
+    bad = {}
+    for name, html in _pages(site[0]).items():
+        if name == "results/index.html":  # the study's tables.md is plain text by design (also .csv)
+            html = html.split('id="tables"', 1)[0]
+        hits = sorted({m.group(0) for m in _ASCII_MATH.finditer(_prose(html))})
+        if hits:
+            bad[name] = hits
+    assert not bad, f"ASCII math outside code (write it as \\(...\\) LaTeX or in code): {bad}"
+
+
+def test_no_truncated_number(site):
+    for name, html in _pages(site[0]).items():
+        text = __import__("html").unescape(re.sub(r"<[^>]+>", "", html))
+        m = re.search(r"\d(\.\.\.|…)", text)
+        assert not m, f"{name}: a number is cut off: ...{text[max(0, m.start() - 60):m.end() + 10]}"
+
+
+def test_every_page_is_in_the_nav(site):
+    site, log = site
+    assert "not included in the \"nav\"" not in log, log[log.find("not included"):][:500]
+    import yaml
+
+    cfg = yaml.safe_load((ROOT / "mkdocs.yml").read_text(encoding="utf-8").split("\nhooks:")[0])
+
+    def walk(nav):
+        for item in nav:
+            for v in item.values():
+                yield from (walk(v) if isinstance(v, list) else [v])
+
+    in_nav = set(walk(cfg["nav"]))
+    pages = {str(p.relative_to(DOCS)) for p in DOCS.rglob("*.md") if "results" not in p.parts}
+    assert pages <= in_nav, f"pages missing from the nav: {sorted(pages - in_nav)}"

@@ -206,7 +206,7 @@ def summarize(rows: Iterable[Mapping]) -> dict[str, int]:
 
 
 def summary_line(summary: Mapping[str, int]) -> str:
-    """``14 checks: 12 hold, 2 refuted, 0 errors``."""
+    """The last line of ``mdgs validate``: ``N checks: H hold, R refuted, E errors`` (singular for 1)."""
     n, h, r, e = summary["checks"], summary["hold"], summary["refuted"], summary["errors"]
     return (
         f"{n} check{'s' if n != 1 else ''}: {h} hold{'s' if h == 1 else ''}, "
