@@ -360,17 +360,14 @@ def _normalisation_block() -> str:
     return _h(NORMALISATION)
 
 
-EXIT_CODES = (
-    (0, "success; for <code>validate</code>: every check holds"),
-    (1, "<code>validate</code> only: a claim is refuted &mdash; a finding, not a failure (the expected outcome on the paper's claims)"),
-    (2, "bad input or usage: one sentence on stderr naming the input and the fix, nothing half-written; for <code>validate</code> also a check that could not decide"),
-    (3, "internal error (a bug: please report it with the command line)"),
-    (130, "interrupted (Ctrl-C); rerun the same command to resume where it can"),
-)
-
-
 def _exit_codes_block() -> str:
-    return _table(["exit code", "meaning"], [[f"<code>{c}</code>", t] for c, t in EXIT_CODES], "exit-codes")
+    """The exit codes of every command, from their one source (:data:`mdgs.cli.EXIT_CODES`)."""
+    from mdgs.cli import EXIT_CODES
+
+    def html(text: str) -> str:
+        return re.sub(r"`([^`]+)`", r"<code>\1</code>", text)
+    return _table(["exit code", "meaning"], [[f"<code>{c}</code>", html(t)] for c, t in EXIT_CODES.items()],
+                  "exit-codes")
 
 
 def _cli_block() -> str:
