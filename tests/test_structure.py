@@ -103,3 +103,14 @@ def test_mask_and_straight_through_gradient():
     assert torch.equal(out[0, 4], pred[0, 4])
     out.sum().backward()
     assert torch.allclose(pred.grad, torch.ones_like(pred))
+
+
+def test_kabsch_of_a_diverged_prediction_is_nan_not_an_error():
+    """A NaN in one graph's prediction gives NaN for that graph only (the rollout flags it as diverged)."""
+    ref = torch.randn(5, 3, dtype=torch.float64)
+    seg = torch.zeros(5, dtype=torch.long)
+    pred = torch.stack([ref, ref.clone()])
+    pred[1, 2, 0] = float("nan")
+    R, t = kabsch(ref, pred, seg, 1)
+    assert torch.isnan(R[1]).all() and torch.isnan(t[1]).all()
+    assert torch.allclose(R[0], torch.eye(3, dtype=torch.float64), atol=1e-10) and torch.allclose(t[0], torch.zeros(3, dtype=torch.float64), atol=1e-10)

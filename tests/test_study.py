@@ -156,3 +156,31 @@ def test_killed_study_resumes_with_each_cell_once_and_the_same_tables(clean_run,
 def test_shipped_study_files_load(name):
     study = load_study(ROOT / "studies" / f"{name}.toml")
     assert study.name == name and cells_of(study)
+
+
+def test_a_cell_with_an_internal_error_is_recorded_and_retried(tmp_path, monkeypatch):
+    import mdgs.study.runner as runner_mod
+    from mdgs.study import run_study
+
+    path = _write(tmp_path, GOOD.replace('seeds = [0]', 'seeds = [0]\nlong_frames = 0\nsensitivity = 0')
+                  + "\n[budget]\nepochs = 1\nmax_steps = 1\nbatch_size = 4\nvalid_max_pairs = 4\n"
+                  + "[references]\nmujoco_dt_factors = [1]\n")
+    study = load_study(path)
+    real = runner_mod._run_cell
+
+    def broken(study_, out, cell, progress, t0):
+        if cell.model == "constant-twist":
+            raise RuntimeError("a bug in one cell")
+        return real(study_, out, cell, progress, t0)
+
+    monkeypatch.setattr(runner_mod, "_run_cell", broken)
+    res = run_study(study, tmp_path / "o")
+    assert res["ran"] == 3  # the study went on past the broken cell
+    lines = read_results(tmp_path / "o")
+    bad = [ln for ln in lines if ln["status"] == "error"]
+    assert len(bad) == 1 and "a bug in one cell" in bad[0]["reason"]
+    monkeypatch.setattr(runner_mod, "_run_cell", real)
+    res = run_study(study, tmp_path / "o")
+    assert res["ran"] == 1  # only the errored cell is retried
+    lines = read_results(tmp_path / "o")
+    assert len(lines) == 3 and all(ln["status"] == "ok" for ln in lines)

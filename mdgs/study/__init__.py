@@ -32,7 +32,16 @@ def report(out: str | os.PathLike, name: str | None = None) -> list[str]:
     problem = output_problem(out, "--report")
     if problem:
         raise StudyError(problem)
-    lines = read_results(out, usable=True)
+    everything = read_results(out)
+    lines = [ln for ln in everything if ln.get("status", "ok") in ("ok", "failed")]
+    errors = [ln for ln in everything if ln.get("status") == "error"]
+    if errors:
+        import warnings
+
+        warnings.warn(f"{len(errors)} cells of {out} ended in an internal error and are left out of the tables "
+                      f"(rerun the study to retry them): " + "; ".join(f"{e['scene']} {e['label']} seed {e['seed']}: "
+                                                                        f"{e['reason'][:160]}" for e in errors[:3]),
+                      stacklevel=2)
     if not lines:
         raise StudyError(f"{out} holds no finished cell yet (no results*.jsonl lines); run the study first")
     if name is None:

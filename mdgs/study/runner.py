@@ -207,8 +207,10 @@ def run_cell(study: StudyConfig, out: Path, cell: Cell, progress: Callable[[dict
 
     A cell that cannot run is still a finished cell with a line saying why, never a crash of the
     study: ``status`` is ``ok``, ``not applicable`` (the model refuses the scene or setting, e.g. a
-    MuJoCo timestep factor that does not divide the data's substeps) or ``failed`` (training
-    diverged: the model counts as failed on every trajectory of the cell).
+    MuJoCo timestep factor that does not divide the data's substeps), ``failed`` (training
+    diverged: the model counts as failed on every trajectory of the cell) or ``error`` (an
+    unexpected exception, i.e. a bug: the line keeps its message and the last traceback lines,
+    the report lists it, and a rerun retries the cell).
     """
     t0 = time.perf_counter()
     try:
@@ -217,6 +219,13 @@ def run_cell(study: StudyConfig, out: Path, cell: Cell, progress: Callable[[dict
         status, reason = "not applicable", str(e)
     except TrainingError as e:
         status, reason = "failed", str(e)
+    except (KeyboardInterrupt, StudyError):
+        raise
+    except Exception as e:  # noqa: BLE001 - a bug in one cell must not stop a study of hundreds
+        import traceback
+
+        status = "error"
+        reason = f"{type(e).__name__}: {e}; " + " | ".join(traceback.format_exc().strip().splitlines()[-4:])
     return {"version": RESULTS_VERSION, "study": study.name, "cell": cell.key(study), **cell.spec(study),
             "scene": cell.scene.name, "status": status, "reason": reason, "sets": {}, "versions": _versions(),
             "wall_seconds": time.perf_counter() - t0}
@@ -286,8 +295,12 @@ def read_results(out: str | os.PathLike, usable: bool = False) -> list[dict]:
                 rec = json.loads(raw)
             except json.JSONDecodeError:
                 continue  # a torn last line of a killed run
-            if rec.get("cell") not in seen:
-                seen.add(rec.get("cell"))
+            key = rec.get("cell")
+            if key in seen and rec.get("status") != "error":  # a retried cell replaces its error line
+                lines = [ln for ln in lines if not (ln.get("cell") == key and ln.get("status") == "error")]
+                seen.discard(key)
+            if key not in seen:
+                seen.add(key)
                 lines.append(rec)
     if usable:
         lines = [ln for ln in lines if ln.get("status", "ok") in ("ok", "failed")]
@@ -360,7 +373,7 @@ def run_study(study: StudyConfig, out: str | os.PathLike, share: tuple[int, int]
 def _run_share(study: StudyConfig, out: Path, share: tuple[int, int], progress) -> dict:
     path = _results_path(out, share)
     _repair(path)
-    done = {r["cell"] for r in read_results(out)}
+    done = {r["cell"] for r in read_results(out) if r.get("status") != "error"}  # errors are retried
     i, n = share
     mine = [c for k, c in enumerate(cells_of(study)) if k % n == i]
     todo = [c for c in mine if c.key(study) not in done]
