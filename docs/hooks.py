@@ -518,15 +518,18 @@ def on_page_markdown(markdown: str, page, config, files, **kwargs) -> str:
 _ROLE = re.compile(r":(?:py:)?(?:func|class|mod|meth|data|attr|exc|obj|const|math):(?=<code>|`|<span)")
 
 
+_MATH_ROLE = re.compile(r":math:<code>(.*?)</code>", re.S)
 _SUP = str.maketrans("0123456789-", "⁰¹²³⁴⁵⁶⁷⁸⁹⁻")
 _CARET = re.compile(r"\b([A-Za-z])\^(-?\d)\b")
 _KEEP = re.compile(r'<pre\b.*?</pre>|<code\b.*?</code>|<script\b.*?</script>|<(span|div) class="arithmatex">.*?</\1>', re.S)
 
 
 def on_page_content(html_text: str, page, config, files, **kwargs) -> str:
-    """Drop the sphinx roles (``:func:``) that docstrings carry before their code span, and
+    """Render ``:math:`` roles of docstrings as math, drop the other sphinx roles (``:func:``)
+    that docstrings carry before their code span, and
     write the carets of units in docstrings and help texts (``m^2``) as superscripts, outside
     code and math."""
+    html_text = _MATH_ROLE.sub(lambda m: f'<span class="arithmatex">\\({m.group(1)}\\)</span>', html_text)
     html_text = _ROLE.sub("", html_text)
     out, pos = [], 0
     for m in _KEEP.finditer(html_text):

@@ -389,7 +389,7 @@ TEXT: dict[str, dict] = {
     "eq30": {"title": r"\(\Psi\) proportional to the radii",
              "statement": r"\(\Psi\) is proportional to \(\sum_i\sum_l \lvert\mathbf r_{i,l}\rvert\)."},
     "eq30.corrected": {
-        "title": r"\(\Psi = s\,(\text{moment term}) - s^2\,(\text{inertia term})\) under \(\mathbf r \to s\,\mathbf r\)",
+        "title": r"\(\Psi = s\) (moment term) \(-\,s^2\) (inertia term) under \(\mathbf r \to s\,\mathbf r\)",
         "statement": r"Under the scaling \(\mathbf r \to s\,\mathbf r\) of the elements, \(\Psi = s\,(\text{moment term}) - "
                      r"s^2\,(\text{inertia term})\): linear plus quadratic, vanishing as \(\tau \to 0\)."},
     "eq15": {"title": r"\(\mathcal L_{\mathrm{cst}} = 0\) on ground truth",
