@@ -135,7 +135,7 @@ def _exception_exit(e: Exception, prog_name: str) -> int:
         import traceback
 
         traceback.print_exception(e, file=sys.stderr)
-    hint = "" if _STATE["debug"] else f"; rerun with `{prog_name} --debug ...` for the traceback"
+    hint = "" if _STATE["debug"] else "; rerun with `mdgs --debug ...` (or MDGS_DEBUG=1) for the traceback"
     print(f"{prog_name}: internal error (a bug in mdgs, please report it): {type(e).__name__}: "
           f"{_one_line(e)[:300]}{hint}.", file=sys.stderr)
     return EXIT_INTERNAL
