@@ -32,15 +32,16 @@ the two derivations can be compared term by term.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any
 
 import sympy as sp
 
 from kane.systems.specs import symbol
 from kane.systems.tree import _exact, _is_identity_quat, _nonzero, _quat_dcm
 
-if TYPE_CHECKING:
-    from kane.systems.system import AnalyticSystem
+#: The system description (:class:`kane.systems.system.AnalyticSystem`), named for annotations only:
+#: ``system`` imports this module, so importing it back (even for type checkers) would make a cycle.
+AnalyticSystem = Any
 
 __all__ = ["bodyframe_kane"]
 

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 import sympy as sp
@@ -25,8 +25,9 @@ from kane.systems.rolling_disc import _rolling_disc_kinematics
 from kane.systems.specs import symbol
 from kane.systems.tree import _tree_kinematics
 
-if TYPE_CHECKING:
-    from kane.systems.system import AnalyticSystem
+#: The system description (:class:`kane.systems.system.AnalyticSystem`), named for annotations only:
+#: ``system`` imports this module, so importing it back (even for type checkers) would make a cycle.
+AnalyticSystem = Any
 
 #: bump when the derivation code changes, so stale cache files are not reused.
 _CACHE_VERSION = 5

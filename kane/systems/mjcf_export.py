@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any
 
 from kane.systems.specs import BodySpec, GeomSpec, JointSpec, symbol
 
-if TYPE_CHECKING:
-    from kane.systems.system import AnalyticSystem
+#: The system description (:class:`kane.systems.system.AnalyticSystem`), named for annotations only:
+#: ``system`` imports this module, so importing it back (even for type checkers) would make a cycle.
+AnalyticSystem = Any
 
 
 def _fmt(x: float) -> str:

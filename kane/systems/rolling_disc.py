@@ -8,7 +8,7 @@ speeds are the disc's angular velocity in the lean frame; the contact point's ve
 from __future__ import annotations
 
 import warnings
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 import sympy as sp
@@ -16,8 +16,9 @@ from sympy.physics import mechanics as me
 
 from kane.systems.specs import symbol
 
-if TYPE_CHECKING:
-    from kane.systems.system import AnalyticSystem
+#: The system description (:class:`kane.systems.system.AnalyticSystem`), named for annotations only:
+#: ``system`` imports this module, so importing it back (even for type checkers) would make a cycle.
+AnalyticSystem = Any
 
 
 def _rolling_disc_kinematics(system: AnalyticSystem) -> dict:

@@ -9,7 +9,7 @@
 from __future__ import annotations
 
 import warnings
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 import sympy as sp
@@ -17,8 +17,9 @@ from sympy.physics import mechanics as me
 
 from kane.systems.specs import Expr, symbol
 
-if TYPE_CHECKING:
-    from kane.systems.system import AnalyticSystem
+#: The system description (:class:`kane.systems.system.AnalyticSystem`), named for annotations only:
+#: ``system`` imports this module, so importing it back (even for type checkers) would make a cycle.
+AnalyticSystem = Any
 
 
 def _exact(x) -> sp.Expr:
