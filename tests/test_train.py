@@ -205,7 +205,11 @@ def test_mismatched_checkpoint_exits_2(data, run, tmp_path):
         ],
     )
     assert res.exit_code == 2, res.output
-    assert "other settings" in res.output and "Traceback" not in res.output
+    assert "holds a run of model 'mdgs', not 'mdgs-nc'" in res.output and "Traceback" not in res.output
+    # the same model with another setting in the same folder
+    res = runner.invoke(app, ["train", "--data", str(data), "--out", str(run), "--set", "hidden=100",
+                              "--epochs", "9", "--max-steps", "1"])
+    assert res.exit_code == 2 and "other settings" in res.output and "model.hidden" in res.output, res.output
     # a run evaluated on another scene
     other = tmp_path / "single"
     generate(GenerateConfig(scene="cubli-single", out=str(other), preset="tiny"))
