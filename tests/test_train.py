@@ -205,7 +205,7 @@ def test_mismatched_checkpoint_exits_2(data, run, tmp_path):
         ],
     )
     assert res.exit_code == 2, res.output
-    assert "other settings" in res.output and "Traceback" not in res.output
+    assert "holds a run of model 'mdgs', not 'mdgs-nc'" in res.output and "Traceback" not in res.output
     # a run evaluated on another scene
     other = tmp_path / "single"
     generate(GenerateConfig(scene="cubli-single", out=str(other), preset="tiny"))
