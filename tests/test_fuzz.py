@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 XML = (ROOT / "examples" / "mjcf" / "cart_pole.xml").read_text()
 
 #: CI examples per hypothesis test (the total is spread in these proportions by MDGS_FUZZ_EXAMPLES).
-CI = {"flags": 90, "mjcf": 60, "hdf5": 60, "nonfinite": 30, "checkpoint": 30}
+CI = {"flags": 90, "mjcf": 60, "hdf5": 60, "nonfinite": 30, "checkpoint": 30, "study": 30}
 _TOTAL = int(os.environ.get("MDGS_FUZZ_EXAMPLES", "0"))
 
 
@@ -227,6 +227,49 @@ def test_malformed_mjcf_is_refused(world, text, command):
         refused(["generate", "--mjcf", f, "--out", out], str(f), [out])
     else:
         refused(["validate", "--mjcf", f, "--json", out], str(f), [out])
+
+
+# --------------------------------------------------------------------------- malformed study files
+
+_STUDY = (ROOT / "studies" / "tiny.toml").read_text()
+_STUDY_EDITS = [  # (what is replaced, bad replacements): each makes the file unusable
+    ('seeds = [0]', ['seeds = [-1]', 'seeds = []', 'seeds = ["a"]', 'seeds = 0', 'seeds = [true]']),
+    ('epochs = 1', ['epochs = 0', 'epochs = -5', 'epochs = "one"', 'epochs = 1.5']),
+    ('batch_size = 16', ['batch_size = 0', 'batch_size = -1']),
+    ('max_steps = 3', ['max_steps = -1']),
+    ('valid_max_pairs = 32', ['valid_max_pairs = -2']),
+    ('preset = "tiny"', ['preset = "huge"', 'preset = 3']),
+    ('name = "cubli-triple"', ['name = "no-such-scene"', 'mjcf = "missing.xml"', 'mjcf = "."',
+                               f'mjcf = "{ROOT / "examples" / "mjcf" / "cart_pole.xml"}"\nsubsteps = 0']),
+    ('name = "mdgs"\n', ['name = "no-such-model"\n', 'name = "mujoco"\n', 'name = "mdgs"\nset = { nope = 1 }\n']),
+    ('mujoco_dt_factors = [1, 20]', ['mujoco_dt_factors = [0]', 'mujoco_dt_factors = [-20]']),
+    ('long_frames = 220', ['long_frames = 1', 'long_frames = "x"']),
+    ('sensitivity = 1e-3', ['sensitivity = -1.0']),
+    ('[study]', ['[study', '[[study]]', '[studies]']),
+    ('name = "tiny"', ['name = ""', 'name = "a/b"', 'nom = "tiny"']),
+]
+
+
+@st.composite
+def broken_study(draw) -> str:
+    if draw(st.integers(0, 5)) == 0:  # cut short inside the [study] table or its keys
+        return _STUDY[: draw(st.integers(0, _STUDY.index("long_frames")))]
+    old, news = draw(st.sampled_from(_STUDY_EDITS))
+    assert old in _STUDY, old
+    return _STUDY.replace(old, draw(st.sampled_from(news)), 1)
+
+
+@_examples("study")
+@given(text=broken_study())
+def test_malformed_study_files_are_refused_before_anything_is_written(world, text):
+    """A study file's numbers and names are checked when it is loaded, before the study folder,
+    its datasets or its runs are made (a study refused later would leave study.json behind)."""
+    folder = _fresh(world, "study-")
+    folder.mkdir()
+    f = folder / "broken.toml"
+    f.write_text(text)
+    out = _fresh(world, "study-out")
+    refused(["study", f, "--out", out], str(f), [out, folder])
 
 
 # --------------------------------------------------------------------------- damaged HDF5
