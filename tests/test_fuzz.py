@@ -1,5 +1,5 @@
-"""Fuzzing every command with bad input (issue 15): malformed MJCF, damaged and foreign HDF5,
-NaN/Inf states, garbage and mismatched checkpoints, bad flags and unwritable outputs.
+"""Fuzzing every command with bad input (issue 15): malformed MJCF and study files, damaged and
+foreign HDF5, NaN/Inf states, garbage and mismatched checkpoints, bad flags and unwritable outputs.
 
 Every bad input must end the same way: exit code 2, no traceback, one line on stderr that names
 the input (the file or the flag), and the command's output folder unchanged, or still absent,
@@ -195,9 +195,10 @@ def broken_mjcf(draw) -> bytes:
     x = XML
     if kind == "truncate":
         return x[: draw(st.integers(0, x.rindex("</mujoco>") - 1))].encode()
-    if kind == "garbage":  # a stray token inside the tag structure
-        at = draw(st.sampled_from([m for m in range(len(x)) if x[m] == "<"][1:]))
-        junk = draw(st.sampled_from(["<", "<<", "</body>", "<body", "&", "<joint type=>", "\x00"]))
+    if kind == "garbage":  # a stray token inside the root element (text around it is ignored by MuJoCo)
+        root = x.index("<mujoco")
+        at = draw(st.sampled_from([m for m in range(root + 1, len(x)) if x[m] == "<"]))
+        junk = draw(st.sampled_from(["<", "<<", "</body>", "<body", "<joint type=>", "\x00"]))
         return (x[:at] + junk + x[at:]).encode()
     if kind == "attr":
         name = draw(st.sampled_from(_NUMERIC_ATTR))
@@ -329,6 +330,22 @@ def _damage(src: Path, dst: Path, kind: str, seed: int, where: float) -> None:
         dst.write_bytes(bytes(raw))
 
 
+def _hangs(path: Path, seconds: float = 60.0) -> bool:
+    """Whether reading every attribute and array of ``path`` hangs the HDF5 library (seen once in a
+    nightly run: a zeroed block in an attribute message made h5py 3.16 / HDF5 2.0 loop forever in
+    ``attrs[...]``; no Python code can interrupt it). Checked in a child process, nightly runs only."""
+    import subprocess
+    import sys
+
+    code = ("import sys, h5py\nf = h5py.File(sys.argv[1], 'r')\n[f.attrs[k] for k in f.attrs]\n"
+            "f.visititems(lambda n, o: [o.attrs[k] for k in o.attrs])")
+    try:
+        subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, timeout=seconds)
+    except subprocess.TimeoutExpired:
+        return True
+    return False
+
+
 def _intact(path: Path, original: dict) -> bool:
     try:
         return _arrays(path) == original
@@ -368,6 +385,8 @@ def test_damaged_hdf5_is_refused(world, originals, d, command, split):
     shutil.copytree(world.data, folder)
     bad = folder / f"{split}.h5"
     _damage(world.data / f"{split}.h5", bad, kind, seed, where)
+    if _TOTAL and _hangs(bad):
+        pytest.fail(f"the HDF5 library hangs reading {bad} ({kind} damage, seed {seed}); every command would")
     out = _fresh(world, "h5-out")
     if command == "validate":
         args, watched = ["validate", "--data", bad, "--json", out], [out, bad]
