@@ -214,7 +214,10 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
             if not mj.is_file():
                 raise StudyError(f"{where}: MJCF file {mj} does not exist")
             sname = _take(sc, "name", str, where, Path(mjcf).stem)
-            scenes.append(SceneEntry(sname, str(mj), _take(sc, "substeps", int, where, 10)))
+            substeps = _take(sc, "substeps", int, where, 10)
+            if substeps < 1:
+                raise StudyError(f"{where}: substeps {substeps} must be at least 1")
+            scenes.append(SceneEntry(sname, str(mj), substeps))
             continue
         sname = _take(sc, "name", str, where, required=True)
         if sname not in SCENES:
@@ -245,6 +248,10 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
         bad = sorted(set(settings) - known)
         if bad:
             raise StudyError(f"{where}: model {mname!r} has no setting {bad[0]!r}; its settings are {', '.join(sorted(known))}")
+        try:  # the values too, before anything runs (a model's Config checks its own ranges)
+            MODELS[mname].Config(**settings)
+        except (TypeError, ValueError) as e:
+            raise StudyError(f"{where}: set = {settings!r} is not a valid setting of {mname!r} ({e})") from None
         models.append(ModelEntry(mname, _take(m, "label", str, where, mname), tuple(sorted(settings.items()))))
     if len({m.label for m in models}) != len(models):
         raise StudyError(f"{f}: two [[models]] share a label; give each a distinct label")
