@@ -29,13 +29,8 @@ SMALL = GNSConfig(latent=16, hidden=16, steps=2, type_embedding=4)
 
 
 @pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """One intra-op thread: on two cores shared by several jobs, two threads thrash (measured 23 ms per
-    overfit step with one thread, 1.3 s with two)."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+def _one_thread(one_torch_thread):
+    """Every test of this module runs on one torch thread (tests/conftest.py)."""
 
 
 @pytest.fixture(scope="module")

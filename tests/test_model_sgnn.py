@@ -25,12 +25,8 @@ runner = CliRunner()
 
 
 @pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    # the message-passing ops are small: on two shared cores one thread is ~10x faster than two
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+def _one_thread(one_torch_thread):
+    """Every test of this module runs on one torch thread (tests/conftest.py)."""
 
 
 @pytest.fixture(scope="module")
