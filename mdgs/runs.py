@@ -40,6 +40,7 @@ from mdgs.data.io import _alive, atomic_path, host_tag, output_problem
 
 __all__ = [
     "RunError",
+    "FolderBusy",
     "CHECKPOINT_FORMAT",
     "atomic_write",
     "atomic_json",
@@ -63,6 +64,10 @@ CHECKPOINT_FORMAT = 2
 
 class RunError(Exception):
     """A run folder, checkpoint or run setting that cannot be used; the message names it and the fix."""
+
+
+class FolderBusy(RunError):
+    """A folder is locked by another live process (:func:`folder_lock`): waiting may help."""
 
 
 def atomic_write(path: str | os.PathLike, write: Callable[[Path], None]) -> None:
@@ -134,7 +139,7 @@ def folder_lock(folder: str | os.PathLike, what: str, flag: str = "--out", name:
                 hint = ("wait for it to finish or stop it" if ours else
                         f"wait for it to finish; if that process no longer runs on {holder.get('host')}, "
                         f"delete {path}")
-                raise RunError(f"{folder} is in use by {holder.get('command', 'another command')} (process {pid} "
+                raise FolderBusy(f"{folder} is in use by {holder.get('command', 'another command')} (process {pid} "
                                f"on {where}, since {holder.get('since', '?')}); {hint}, or choose another {flag}") from None
             with os.fdopen(fd, "w") as f:
                 f.write(json.dumps(me) + "\n")

@@ -184,6 +184,24 @@ def test_snap_keeps_each_object_rigid_and_training_ignores_it(train_split):
         assert float((torch.cdist(raw.x[:, idx], raw.x[:, idx]) - dref).abs().max()) > 1e-4
 
 
+def test_snap_model_from_a_trained_sgnn_keeps_weights_and_settings_and_turns_the_snap_on(train_split):
+    d = train_split
+    plain = _model(d, SGNN, hidden=8, p_step=2)
+    with torch.no_grad():
+        for p in plain.parameters():
+            p.add_(0.01)  # "trained": weights no fresh model has
+    snap = SGNNSnap.from_trained(plain)
+    assert snap.name == "sgnn-snap" and snap.config.rigid_snap and not plain.config.rigid_snap
+    assert snap.config.hidden == 8 and snap.config.p_step == 2
+    torch.testing.assert_close(dict(plain.state_dict()), dict(snap.state_dict()), rtol=0, atol=0)
+    s, ctrl = _state(d, plain, dtype=torch.float32)
+    with torch.no_grad():
+        a, b = plain.step(s, ctrl), snap.step(s, ctrl)
+    assert not torch.equal(a.x, b.x)  # same net, the snap changes the rollout
+    with pytest.raises(ModelError, match="does not share the training"):
+        SGNNSnap.from_trained(snap)
+
+
 def test_bind_refuses_another_actuator_count(train_split):
     m = _model(train_split, hidden=8)
     other = load_split(train_split.path)

@@ -184,3 +184,20 @@ def test_a_cell_with_an_internal_error_is_recorded_and_retried(tmp_path, monkeyp
     assert res["ran"] == 1  # only the errored cell is retried
     lines = read_results(tmp_path / "o")
     assert len(lines) == 3 and all(ln["status"] == "ok" for ln in lines)
+
+
+def test_a_model_that_trains_as_another_shares_its_run(tmp_path):
+    """sgnn-snap trains to sgnn's weights (the snap acts at rollout only): the study trains once."""
+    text = GOOD.replace('[[models]]\nname = "mdgs"', '[[models]]\nname = "sgnn"\nset = { hidden = 8, p_step = 1 }\n'
+                        '[[models]]\nname = "sgnn-snap"\nset = { hidden = 8, p_step = 1 }')
+    text += "[budget]\nepochs = 1\nmax_steps = 2\nbatch_size = 2\nvalid_max_pairs = 8\n"
+    text = text.replace("[study]", "[study]\nlong_frames = 0\nsensitivity = 0.0")
+    study = load_study(_write(tmp_path, text))
+    res = runner.invoke(app, ["study", str(study.path), "--out", str(tmp_path / "o"), "--no-report"])
+    assert res.exit_code == 0, res.output
+    lines = {ln["model"]: ln for ln in read_results(tmp_path / "o") if ln["kind"] == "learned"}
+    assert lines["sgnn"]["status"] == lines["sgnn-snap"]["status"] == "ok"
+    assert lines["sgnn-snap"]["train"]["trained_as"] == {"model": "sgnn", "cell": lines["sgnn"]["cell"]}
+    assert [p.name for p in (tmp_path / "o" / "runs").iterdir()] == [lines["sgnn"]["cell"]]  # one run
+    assert lines["sgnn"]["one_step_mse"] == lines["sgnn-snap"]["one_step_mse"]  # same weights, same one step
+    assert lines["sgnn"]["sets"]["test"]["pos_mse_t40"] != lines["sgnn-snap"]["sets"]["test"]["pos_mse_t40"]

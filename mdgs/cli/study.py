@@ -54,10 +54,12 @@ def study_cmd(
                     if e["index"]:
                         bar.advance(overall)
                     bar.update(inner, description=e["label"], total=None, completed=0, visible=True)
-                elif e["kind"] == "train" and e.get("kind") == "train" and "steps" in e and "step" in e:
+                elif e["kind"] == "train" and "steps" in e and "step" in e:
                     bar.update(inner, description=f"  epoch {e['epoch'] + 1}", total=e["steps"], completed=e["step"])
                 elif e["kind"] == "evaluate":
                     bar.update(inner, description=f"  evaluating on {e['set']}", total=None)
+                elif e["kind"] == "wait":
+                    bar.update(inner, description=f"  waiting for another share training {e['run']}", total=None)
 
             res = run_study(study, out, share, progress=on)
             if res["ran"]:

@@ -17,7 +17,7 @@ Every tensor of a :class:`State` is batch-first, so rows of two states can be sp
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -106,6 +106,10 @@ class Simulator(nn.Module):
     learned: ClassVar[bool] = True
     summary: ClassVar[str] = ""
     default_lr: ClassVar[float] = 1e-3
+    #: Registry name of a model that trains to the very same weights as this one (the two differ only
+    #: at rollout, e.g. ``sgnn-snap`` -> ``sgnn``): a study trains that run once and evaluates both
+    #: (:meth:`from_trained`). ``None``: this model trains its own run.
+    trains_as: ClassVar[str | None] = None
 
     def __init__(self, config: Any):
         super().__init__()
@@ -129,6 +133,23 @@ class Simulator(nn.Module):
         model.bind(train)
         model.fit(train)
         return model
+
+    @classmethod
+    def from_trained(cls, twin: Simulator) -> Simulator:
+        """This model with the weights and settings of a trained ``trains_as`` model ``twin`` (same device,
+        eval mode); only the settings in which this model's ``Config`` defaults differ from the twin's
+        (its rollout settings) take this model's defaults."""
+        if cls.trains_as is None or twin.name != cls.trains_as:
+            raise ModelError(f"model {cls.name!r} does not share the training of {twin.name!r}")
+        mine, theirs = cls.Config(), type(twin.config)()
+        own = {f.name: getattr(mine, f.name) for f in fields(mine)
+               if getattr(mine, f.name) != getattr(theirs, f.name, None)}
+        cfg = cls.Config(**{**asdict(twin.config), **own})
+        model = cls(cfg).to(twin.device)
+        model.load_state_dict(twin.state_dict())
+        if twin._split is not None:
+            model.bind(twin._split)
+        return model.eval()
 
     def fit(self, train: SplitData) -> None:
         """Fit normalisation statistics on the training split (default: nothing)."""

@@ -30,6 +30,7 @@ import torch
 
 from mdgs.data.split import SplitData
 from mdgs.graphs import Propagator, SceneGraph, contact_edges, gcn_norm
+from mdgs.joints import JointSet, joints_of, project_joints
 from mdgs.losses import constraint_loss, mse_loss, speeds_of
 from mdgs.models.base import Batch, ModelError, Simulator, State
 from mdgs.models.integrators import INTEGRATORS
@@ -103,8 +104,15 @@ class MDGSConfig:
     noise: str = "auto"
     noise_sigma_x: float = -1.0
     noise_sigma_v: float = -1.0
+    zero_init: bool = False
+    joints: bool = False
+    object_scales: bool = False
+    dx_scales: tuple[float, ...] = ()
+    dv_scales: tuple[float, ...] = ()
 
     def __post_init__(self):
+        if self.object_scales and self.integrator != "rigid":
+            raise ValueError("object_scales needs the rigid integrator")
         if self.variant not in VARIANTS:
             raise ValueError(f"variant must be one of {', '.join(VARIANTS)}, got {self.variant!r}")
         if self.bound not in ("paper", "corrected"):
@@ -219,12 +227,16 @@ class MDGS(Simulator):
             self.global_gather = GCN(d_z, c.hidden, c.global_dim, c.layers)  # g^Z-
             self.force_contact = GCN(d_z + c.global_dim, c.hidden, 3, c.layers)  # g^F-
         self.state = GCN(d_z + 3, c.hidden, 6, c.layers)  # g
+        if c.zero_init:  # start as the constant-twist reference: g outputs 0 until trained
+            torch.nn.init.zeros_(self.state.lins[-1].weight)
+            torch.nn.init.zeros_(self.state.lins[-1].bias)
         # input normalisation of z (set from training data by fit / set_normalization)
         self.register_buffer("z_mean", torch.zeros(d_z))
         self.register_buffer("z_std", torch.ones(d_z))
         self._scene: SceneGraph | None = None
         self._scenes: dict = {}
         self._sign: torch.Tensor | None = None
+        self._joints = JointSet()
 
     # --- construction ------------------------------------------------------------------------
     @classmethod
@@ -256,6 +268,15 @@ class MDGS(Simulator):
         # twist: g has no position output; a velocity error weighs like the position error it makes
         # over half a frame. Otherwise: the spread of g's position target.
         dx_auto = dt / 2 * float(dv.std()) if cfg.integrator == "twist" else float(dx.std())
+        if cfg.object_scales and not cfg.dx_scales:  # per object: each object's own spread, floored
+            scene = SceneGraph.from_static(d.static, has_contact=d.has_contact)
+            om = np.asarray(scene.obj)[d.moving]
+            gx, gv = max(float(dx.std()), 1e-12), max(float(dv.std()), 1e-12)
+            sx, sv = [1.0] * scene.n_obj, [1.0] * scene.n_obj
+            for o in np.unique(om):
+                sx[o] = max(float(dx[:, om == o].std()), 1e-3 * gx)
+                sv[o] = max(float(dv[:, om == o].std()), 1e-3 * gv)
+            kw["dx_scales"], kw["dv_scales"] = tuple(sx), tuple(sv)
         if cfg.dx_scale == 1.0:
             kw["dx_scale"] = max(dx_auto, 1e-12)
         if cfg.dv_scale == 1.0:
@@ -285,6 +306,8 @@ class MDGS(Simulator):
         self._scene = SceneGraph.from_static(split.static, has_contact=split.has_contact)
         self._scenes = {}
         self._sign = torch.from_numpy(np.asarray(split.control_sign, np.float32))
+        self._joints = (joints_of(split.mj_model(), split.static["node_body"], split.static["node_centroid"])
+                        if self.config.joints else JointSet())
 
     def scene_on(self, dev) -> SceneGraph:
         """The bound scene graph on ``dev`` (cached)."""
@@ -293,6 +316,18 @@ class MDGS(Simulator):
         key = str(dev)
         if key not in self._scenes:
             self._scenes[key] = self._scene.to(dev)
+        return self._scenes[key]
+
+    def scales(self, scene: SceneGraph, dev) -> tuple:
+        """``(dx_scale, dv_scale)``: floats, or with ``object_scales`` per-node ``[N, 1]`` tensors (m, m/s)."""
+        c = self.config
+        if not c.object_scales:
+            return c.dx_scale, c.dv_scale
+        key = ("scales", str(dev))
+        if key not in self._scenes:
+            obj = scene.obj.to(dev)
+            self._scenes[key] = tuple(torch.tensor(s, dtype=torch.float32, device=dev)[obj].unsqueeze(-1)
+                                      for s in (c.dx_scales, c.dv_scales))
         return self._scenes[key]
 
     def node_controls(self, ctrl: torch.Tensor) -> torch.Tensor:
@@ -359,12 +394,17 @@ class MDGS(Simulator):
         f = f_c + f_nc  # Eq. (7)
         lam = c.lam if c.lam is not None else 1.0 / c.force_scale
         out = self.state(obj_prop, torch.cat([z, lam * f], -1))  # Eqs. (8)-(9)
-        x_next, v_next = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=c.dx_scale,
-                                                   dv_scale=c.dv_scale, dvc_scale=c.dvc_scale,
+        sx, sv = self.scales(scene, dev)
+        x_next, v_next = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx,
+                                                   dv_scale=sv, dvc_scale=c.dvc_scale,
                                                    dw_scale=c.dw_scale)
         moving = ~scene.static.to(dev)
         if c.structure:
             x_next = align_to_reference(x_next, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj, mask=moving)
+        if c.joints and self._joints:  # straight-through: the step's gradient as without the projection
+            xj, vj = project_joints(x_next, v_next, self._joints, scene.ref_shape.to(dev), scene.obj.to(dev),
+                                    scene.n_obj, scene.mass.to(dev))
+            x_next, v_next = x_next + (xj - x_next).detach(), v_next + (vj - v_next).detach()
         # static elements never move
         m = moving.view(1, N, 1)
         x_next = torch.where(m, x_next, x)
@@ -382,7 +422,7 @@ class MDGS(Simulator):
         scene = self.scene_on(batch.x.device)
         moving = ~scene.static
         p = self(scene, batch.x, batch.v, self.node_controls(batch.ctrl))
-        l_mse = mse_loss(p.x, p.v, batch.x_next, batch.v_next, moving, cfg.dx_scale, cfg.dv_scale)  # Eq. (10)
+        l_mse = mse_loss(p.x, p.v, batch.x_next, batch.v_next, moving, *self.scales(scene, batch.x.device))  # Eq. (10)
         l_cst = constraint_loss(p.force, batch.x, batch.v, p.x, p.v, scene.mass, scene.tau, scene.obj, scene.n_obj,
                                 cfg.dt, moving=moving, bound=cfg.bound, speeds=speeds_of(cfg.variant),
                                 scale=cfg.force_scale * int(moving.sum()))  # Eqs. (13)-(15)
@@ -393,10 +433,9 @@ class MDGS(Simulator):
 
     def validation_error(self, batch: Batch) -> torch.Tensor:
         """One-step L_mse (Eq. 10, scaled by the model's dx/dv scales, moving nodes)."""
-        cfg = self.config
         scene = self.scene_on(batch.x.device)
         p = self(scene, batch.x, batch.v, self.node_controls(batch.ctrl))
-        return mse_loss(p.x, p.v, batch.x_next, batch.v_next, ~scene.static, cfg.dx_scale, cfg.dv_scale)
+        return mse_loss(p.x, p.v, batch.x_next, batch.v_next, ~scene.static, *self.scales(scene, batch.x.device))
 
     def perturb(self, batch: Batch, gen: torch.Generator) -> Batch:
         """Training noise (B.2) on the input frame's moving nodes; targets stay clean (:func:`noise_sigmas`).

@@ -476,4 +476,5 @@ class SGNNSnap(SGNN):
 
     name = "sgnn-snap"
     Config = _SnapConfig
+    trains_as = "sgnn"
     summary = "SGNN with the rigid snap at rollout (Kabsch of each object's reference shape onto the prediction)"

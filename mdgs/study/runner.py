@@ -28,7 +28,7 @@ import os
 import platform
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from importlib import metadata
 from pathlib import Path
 
@@ -44,7 +44,7 @@ from mdgs.evaluate.physics import energy_error, hinge_anchors, joint_separation,
 from mdgs.evaluate.rollout import divergence_threshold, rollout
 from mdgs.models import MODELS, ModelError, Simulator, one_step_error
 from mdgs.partition import PartitionParams
-from mdgs.runs import LOCK_NAME, atomic_json, folder_lock, load_run, resolve_device
+from mdgs.runs import LOCK_NAME, FolderBusy, atomic_json, folder_lock, load_run, resolve_device
 from mdgs.study.config import SceneEntry, StudyConfig, StudyError
 from mdgs.train import TrainConfig, TrainingError, train
 
@@ -238,21 +238,27 @@ def _run_cell(study: StudyConfig, out: Path, cell: Cell, progress, t0: float) ->
     line = {"version": RESULTS_VERSION, "study": study.name, "cell": cell.key(study), **cell.spec(study),
             "scene": cell.scene.name, "status": "ok", "data_fingerprint": _fingerprint(data, "test")}
     train_info = {}
-    if MODELS[cell.model].learned:
-        run = out / "runs" / cell.key(study)
+    cls = MODELS[cell.model]
+    if cls.learned:
+        trainee = _training_cell(study, cell)
+        run = out / "runs" / trainee.key(study)
         b = study.budget
-        cls = MODELS[cell.model]
-        cfg = TrainConfig(data=str(data), out=str(run), model_name=cell.model, epochs=b.epochs,
+        tcls = MODELS[trainee.model]
+        cfg = TrainConfig(data=str(data), out=str(run), model_name=trainee.model, epochs=b.epochs,
                           batch_size=b.batch_size, seed=cell.seed, device=study.device, max_steps=b.max_steps,
-                          valid_max_pairs=b.valid_max_pairs, model=cls.Config(**dict(cell.settings)))
+                          valid_max_pairs=b.valid_max_pairs, model=tcls.Config(**dict(cell.settings)))
         t1 = time.perf_counter()
-        train(cfg, progress=lambda e: progress({"kind": "train", **e}))
+        _train_or_wait(cfg, progress)
         model, state = load_run(run, dev)
+        if trainee is not cell:
+            model = cls.from_trained(model)
         hist = state["history"]
         train_info = {"epochs": len(hist), "steps": int(sum(h["steps"] for h in hist)),
                       "train_seconds": float(sum(h["train_seconds"] for h in hist)),
                       "wall_seconds_this_run": time.perf_counter() - t1,
                       "valid_mse_last": hist[-1]["valid_mse"] if hist else None}
+        if trainee is not cell:
+            train_info["trained_as"] = {"model": trainee.model, "cell": trainee.key(study)}
         line["one_step_mse"] = one_step_error(model, test, dev)
     else:
         model = MODELS[cell.model].from_data(test, MODELS[cell.model].Config(**dict(cell.settings))).to(dev)
@@ -275,6 +281,37 @@ def _run_cell(study: StudyConfig, out: Path, cell: Cell, progress, t0: float) ->
     line["versions"] = _versions()
     line["wall_seconds"] = time.perf_counter() - t0
     return line
+
+
+def _training_cell(study: StudyConfig, cell: Cell) -> Cell:
+    """The cell whose run trains ``cell``'s weights: ``cell`` itself, or for a model that trains as
+    another (:attr:`~mdgs.models.base.Simulator.trains_as`, e.g. ``sgnn-snap``) the study's cell of
+    that model with the same scene, seed and settings (trained once, evaluated as both), or a cell
+    of its own if the study has no such cell."""
+    name = MODELS[cell.model].trains_as
+    if name is None:
+        return cell
+    for c in cells_of(study):
+        if (c.kind == cell.kind and c.model == name and c.scene == cell.scene and c.seed == cell.seed
+                and c.settings == cell.settings and c.refine == cell.refine):
+            return c
+    return replace(cell, model=name, label=f"{cell.label} (trained as {name})")
+
+
+#: Seconds between looks at a run folder that another share of the study is training.
+WAIT_SECONDS = 30.0
+
+
+def _train_or_wait(cfg: TrainConfig, progress) -> None:
+    """Train (or resume, or find finished) the run ``cfg.out``; while another process holds its lock
+    (a twin cell in another share), wait for it rather than train the same weights twice."""
+    while True:
+        try:
+            train(cfg, progress=lambda e: progress({"kind": "train", **e}))
+            return
+        except FolderBusy:
+            progress({"kind": "wait", "run": cfg.out})
+            time.sleep(WAIT_SECONDS)
 
 
 # --------------------------------------------------------------------------- results file
