@@ -201,3 +201,15 @@ def test_a_model_that_trains_as_another_shares_its_run(tmp_path):
     assert [p.name for p in (tmp_path / "o" / "runs").iterdir()] == [lines["sgnn"]["cell"]]  # one run
     assert lines["sgnn"]["one_step_mse"] == lines["sgnn-snap"]["one_step_mse"]  # same weights, same one step
     assert lines["sgnn"]["sets"]["test"]["pos_mse_t40"] != lines["sgnn-snap"]["sets"]["test"]["pos_mse_t40"]
+
+
+def test_a_model_revision_makes_its_cells_stale_and_no_others(monkeypatch):
+    from mdgs.models import MODELS
+
+    study = load_study(TINY)
+    before = {c: c.key(study) for c in cells_of(study)}
+    monkeypatch.setattr(MODELS["mdgs"], "revision", MODELS["mdgs"].revision + 1)
+    changed = {c.model for c, k in before.items() if c.key(study) != k}
+    # the variants inherit MDGS's revision (same code); the references and peers keep their keys
+    assert "mdgs" in changed and changed <= {"mdgs", "mdgs-nc", "mdgs-sc"}
+    assert any(c.model not in changed for c in before)

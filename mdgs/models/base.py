@@ -110,6 +110,10 @@ class Simulator(nn.Module):
     #: at rollout, e.g. ``sgnn-snap`` -> ``sgnn``): a study trains that run once and evaluates both
     #: (:meth:`from_trained`). ``None``: this model trains its own run.
     trains_as: ClassVar[str | None] = None
+    #: Bumped when a change of this model's defaults or code changes its results: study cells are
+    #: keyed by it (:meth:`mdgs.study.runner.Cell.spec`), so a study reruns the cells the change
+    #: makes stale instead of mixing results of two versions of the model.
+    revision: ClassVar[int] = 0
 
     def __init__(self, config: Any):
         super().__init__()

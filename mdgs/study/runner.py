@@ -76,6 +76,8 @@ class Cell:
              "long_trajectories": study.long_trajectories, "failure_factor": study.failure_factor}
         if MODELS[self.model].learned:
             d["budget"] = asdict(study.budget)
+        if MODELS[self.model].revision:  # absent for revision 0: keys of cells run before revisions existed hold
+            d["revision"] = MODELS[self.model].revision
         return d
 
     def key(self, study: StudyConfig) -> str:
