@@ -94,6 +94,11 @@ class PartitionError(ValueError):
     """A model that the partition does not support; the message names the geom and the fix."""
 
 
+#: Most divisions along a body's length that ``refine`` may ask for (about MAX_LEVEL^3 elements per
+#: body): beyond it generation would run for hours and models would not fit in memory.
+MAX_LEVEL = 24
+
+
 @dataclass(frozen=True)
 class PartitionParams:
     """How finely bodies are partitioned. Every default is the one documented in the module."""
@@ -832,6 +837,13 @@ def partition_model(
             n = int(params.level)
         else:
             n = default_level(model, b, params, geoms) * max(1, int(params.refine))
+            if n > MAX_LEVEL:
+                name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or f"#{b}"
+                raise PartitionError(
+                    f"--refine {params.refine} cuts body '{name}' into {n} divisions along its length (up to "
+                    f"{n ** 3} elements); the limit is {MAX_LEVEL} divisions: use --refine "
+                    f"{max(1, MAX_LEVEL // default_level(model, b, params, geoms))} or less"
+                )
         L = _body_length(model, geoms)
         bc = _cells_of_body(model, geoms, L / n)
         k = len(bc.volume)

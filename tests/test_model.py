@@ -215,3 +215,21 @@ def test_config_rejects_unknown_variant():
         ModelConfig(variant="mdgs-x")
     with pytest.raises(ValueError, match="bound"):
         ModelConfig(bound="tight")
+
+
+@pytest.mark.parametrize(("setting", "phrase"), [
+    ({"hidden": 0}, "hidden must be a positive integer"),
+    ({"layers": -1}, "layers must be a positive integer"),
+    ({"global_dim": True}, "global_dim must be a positive integer"),
+    ({"dense_max_nodes": -2}, "dense_max_nodes must be an integer of at least 0"),
+    ({"cst_weight": -1.0}, "cst_weight must be a number of at least 0"),
+    ({"cst_weight": float("nan")}, "cst_weight must be a number of at least 0"),
+    ({"dx_scale": 0.0}, "dx_scale must be a positive number"),
+    ({"force_scale": float("inf")}, "force_scale must be a positive number"),
+    ({"lam": 0.0}, "lam must be a positive number or None"),
+    ({"dt": -0.01}, "dt must be a number of at least 0"),
+    ({"object_scales": True, "integrator": "euler"}, "object_scales needs the rigid integrator"),
+])
+def test_config_rejects_out_of_range_settings_by_name(setting, phrase):
+    with pytest.raises(ValueError, match=phrase):
+        ModelConfig(**setting)

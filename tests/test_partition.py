@@ -150,3 +150,16 @@ def test_unsupported_geom_on_a_moving_body_is_one_clear_error():
     m = mujoco.MjModel.from_xml_string(xml)
     with pytest.raises(PartitionError, match="hfield.*cannot be partitioned"):
         partition_model(m)
+
+
+def test_refine_beyond_the_level_limit_is_refused_before_any_cutting():
+    from mdgs.partition import MAX_LEVEL
+
+    m = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body name="slab"><freejoint/><geom type="box" size="0.1 0.1 0.1"/></body>'
+        "</worldbody></mujoco>")
+    base = default_level(m, 1, PartitionParams(), [0])
+    ok = MAX_LEVEL // base
+    partition_model(m, PartitionParams(refine=1))  # the default passes
+    with pytest.raises(PartitionError, match=f"limit is {MAX_LEVEL} divisions: use --refine {ok} or less"):
+        partition_model(m, PartitionParams(refine=ok + 1))

@@ -367,6 +367,47 @@ def _short(e: Exception) -> str:
     return msg[:160]
 
 
+def _probe_seconds() -> float:
+    try:
+        return float(os.environ.get("MDGS_H5_PROBE_SECONDS", "30"))
+    except ValueError:
+        return 30.0
+
+
+def _read_metadata(path: str) -> None:
+    """Read every attribute of ``path`` (root, groups, arrays): what a damaged file can hang in."""
+    with h5py.File(path, "r") as f:
+        [f.attrs[k] for k in f.attrs]
+        f.visititems(lambda name, obj: [obj.attrs[k] for k in obj.attrs])
+
+
+_PROBED: dict = {}
+
+
+def _metadata_hangs(path: Path) -> bool:
+    """Whether reading the metadata of ``path`` hangs the HDF5 library (seen with a zeroed block in an
+    attribute message: h5py 3.16 / HDF5 2.0 loop forever in ``attrs[...]``, and no Python code can
+    interrupt them). Read first in a forked child with a time limit (``MDGS_H5_PROBE_SECONDS``,
+    default 30 s); once per file version and process. Where processes cannot fork, not checked."""
+    import multiprocessing as mp
+
+    st = path.stat()
+    key = (str(path.resolve()), st.st_size, st.st_mtime_ns)
+    if key in _PROBED:
+        return _PROBED[key]
+    if "fork" not in mp.get_all_start_methods():
+        return False
+    child = mp.get_context("fork").Process(target=_read_metadata, args=(str(path),), daemon=True)
+    child.start()
+    child.join(_probe_seconds())
+    hung = child.is_alive()
+    if hung:
+        child.kill()
+        child.join()
+    _PROBED[key] = hung
+    return hung
+
+
 def open_dataset(
     path: str | os.PathLike, *, verify: bool = False, allow_incomplete: bool = False
 ) -> Dataset:
@@ -388,6 +429,9 @@ def open_dataset(
         )
     if path.stat().st_size == 0:
         raise DatasetError(f"{path} is empty (0 bytes), not a dataset; {_REGEN}")
+    if _metadata_hangs(path):
+        raise DatasetError(f"{path} is corrupted: the HDF5 library does not return from reading its metadata "
+                           f"within {_probe_seconds():g} s; {_REGEN}")
     try:
         f = h5py.File(path, "r")
     except OSError as e:

@@ -23,6 +23,7 @@ per actuator (:func:`mdgs.data.split.control_map`; docs/ambiguities.md).
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
@@ -111,6 +112,22 @@ class MDGSConfig:
     dv_scales: tuple[float, ...] = ()
 
     def __post_init__(self):
+        for name in ("hidden", "layers", "global_dim"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        if isinstance(self.dense_max_nodes, bool) or not isinstance(self.dense_max_nodes, int) or self.dense_max_nodes < 0:
+            raise ValueError(f"dense_max_nodes must be an integer of at least 0, got {self.dense_max_nodes!r}")
+        for name in ("force_scale", "dx_scale", "dv_scale", "dvc_scale", "dw_scale"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+        if not (isinstance(self.cst_weight, int | float) and math.isfinite(self.cst_weight) and self.cst_weight >= 0):
+            raise ValueError(f"cst_weight must be a number of at least 0, got {self.cst_weight!r}")
+        if self.lam is not None and not (isinstance(self.lam, int | float) and math.isfinite(self.lam) and self.lam > 0):
+            raise ValueError(f"lam must be a positive number or None, got {self.lam!r}")
+        if not (isinstance(self.dt, int | float) and math.isfinite(self.dt) and self.dt >= 0):
+            raise ValueError(f"dt must be a number of at least 0 (s), got {self.dt!r}")
         if self.object_scales and self.integrator != "rigid":
             raise ValueError("object_scales needs the rigid integrator")
         if self.variant not in VARIANTS:
