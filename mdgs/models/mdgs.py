@@ -80,6 +80,16 @@ class MDGSConfig:
     noise : training noise spec, "auto" (B.2: ``abs:4e-4`` for Cubli scenes, ``inc:0.06``
         otherwise), ``abs:S``, ``inc:F`` or ``none`` (:func:`noise_sigmas`).
     noise_sigma_x, noise_sigma_v : m and m/s, the resolved noise (set from the data; -1: unset).
+    zero_init : start g's last layer at zero, so the untrained model is the constant-twist
+        reference (rigid integrator) and training moves it away only where that lowers the loss.
+    joints : project every simulated step (rollout, one-step validation; not the training
+        pass) onto the scene's MJCF joints (:mod:`mdgs.joints`), so hinged bodies stay hinged.
+        Projecting inside training with a straight-through gradient was measured worse than
+        training without it (docs/mdgs-experiments.md).
+    object_scales : scale g's outputs and L_mse per object (``dx_scales``, ``dv_scales``: each
+        object's own spread of the rigid integrator's targets, floored at 1e-3 of the global
+        spread) instead of one global ``dx_scale``, ``dv_scale``, so that a slow body (a cube)
+        weighs as much as a fast one (its flywheels). Rigid integrator only.
     Scales left at 1.0, ``control_dim``, ``contact``, ``dt`` and the sigmas are filled from the
     training split by :meth:`MDGS.resolve_config`.
     """
@@ -385,11 +395,13 @@ class MDGS(Simulator):
         return torch.cat(parts, dim=-1)
 
     def forward(self, scene: SceneGraph, x: torch.Tensor, v: torch.Tensor,
-                control: torch.Tensor | None = None) -> Prediction:
+                control: torch.Tensor | None = None, simulate: bool = False) -> Prediction:
         """One step ``Z^(t) -> Z^(t+1)`` on ``scene`` (same device).
 
         x, v : [B, N, 3] centroid positions (m) and velocities (m/s) at t.
         control : [B, N, control_dim] per-node control features, or None.
+        simulate : a simulation step (rollout, one-step validation) rather than a training pass:
+            with ``joints`` the prediction is projected onto the scene's joints.
         """
         c = self.config
         B, N, _ = x.shape
@@ -418,10 +430,9 @@ class MDGS(Simulator):
         moving = ~scene.static.to(dev)
         if c.structure:
             x_next = align_to_reference(x_next, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj, mask=moving)
-        if c.joints and self._joints:  # straight-through: the step's gradient as without the projection
-            xj, vj = project_joints(x_next, v_next, self._joints, scene.ref_shape.to(dev), scene.obj.to(dev),
-                                    scene.n_obj, scene.mass.to(dev))
-            x_next, v_next = x_next + (xj - x_next).detach(), v_next + (vj - v_next).detach()
+        if simulate and c.joints and self._joints:
+            x_next, v_next = project_joints(x_next, v_next, self._joints, scene.ref_shape.to(dev), scene.obj.to(dev),
+                                            scene.n_obj, scene.mass.to(dev))
         # static elements never move
         m = moving.view(1, N, 1)
         x_next = torch.where(m, x_next, x)
@@ -430,7 +441,7 @@ class MDGS(Simulator):
 
     # --- the Simulator contract ------------------------------------------------------------------
     def step(self, state: State, ctrl: torch.Tensor) -> State:
-        p = self(self.scene_on(state.x.device), state.x, state.v, self.node_controls(ctrl))
+        p = self(self.scene_on(state.x.device), state.x, state.v, self.node_controls(ctrl), simulate=True)
         return State(p.x, p.v)
 
     def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
@@ -451,7 +462,7 @@ class MDGS(Simulator):
     def validation_error(self, batch: Batch) -> torch.Tensor:
         """One-step L_mse (Eq. 10, scaled by the model's dx/dv scales, moving nodes)."""
         scene = self.scene_on(batch.x.device)
-        p = self(scene, batch.x, batch.v, self.node_controls(batch.ctrl))
+        p = self(scene, batch.x, batch.v, self.node_controls(batch.ctrl), simulate=True)
         return mse_loss(p.x, p.v, batch.x_next, batch.v_next, ~scene.static, *self.scales(scene, batch.x.device))
 
     def perturb(self, batch: Batch, gen: torch.Generator) -> Batch:
