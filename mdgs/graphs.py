@@ -147,6 +147,29 @@ def gcn_norm(edge_index: torch.Tensor, num_nodes: int, dtype=torch.float32, devi
     return torch.sparse_csr_tensor(crow, col, val, (num_nodes, num_nodes), check_invariants=False)
 
 
+def dense_contacts(pos: torch.Tensor, obj: torch.Tensor, r: float, static: torch.Tensor | None = None) -> torch.Tensor:
+    """``[B, N, N]`` bool adjacency of the contact edges: the dense form of :func:`contact_edges`
+    (the same pairs; for small scenes, where one ``[B, N, N]`` block is cheaper than edge lists)."""
+    if pos.dim() == 2:
+        pos = pos.unsqueeze(0)
+    obj = obj.to(pos.device)
+    d = torch.cdist(pos, pos, compute_mode="donot_use_mm_for_euclid_dist")
+    keep = obj[:, None] != obj[None, :]
+    if static is not None:
+        st = static.to(pos.device)
+        keep = keep & ~(st[:, None] & st[None, :])
+    return (d < r) & keep
+
+
+def gcn_norm_adjacency(adj: torch.Tensor, dtype=torch.float32) -> torch.Tensor:
+    """``D^-1/2 (A + I) D^-1/2`` of bool adjacencies ``adj`` [..., N, N] (self-loops counted once):
+    the dense, batched form of :func:`gcn_norm`."""
+    a = adj | torch.eye(adj.shape[-1], dtype=torch.bool, device=adj.device)
+    a = a.to(dtype)
+    dis = a.sum(-1).rsqrt()
+    return dis.unsqueeze(-1) * a * dis.unsqueeze(-2)
+
+
 def gcn_norm_dense(edge_index: torch.Tensor, num_nodes: int, dtype=torch.float32, device=None) -> torch.Tensor:
     """Dense ``[N, N]`` form of :func:`gcn_norm` (for small graphs shared by a whole batch)."""
     return gcn_norm(edge_index, num_nodes, dtype, device).to_dense()
@@ -156,7 +179,8 @@ def gcn_norm_dense(edge_index: torch.Tensor, num_nodes: int, dtype=torch.float32
 class Propagator:
     """``A_hat @ H`` for ``H`` of shape ``[B, N, F]``.
 
-    Either ``dense`` ``[N, N]`` shared by every graph of the batch (one GEMM), or ``csr``
+    Either ``dense`` ``[N, N]`` shared by every graph of the batch (one GEMM) or ``[B, N, N]``
+    one per graph (a batched GEMM), or ``csr``
     ``[B N, B N]`` block-diagonal over the batch.
     """
 
@@ -186,6 +210,17 @@ class ObjectGraph:
     num_nodes: int
     dense_max_nodes: int = 256
     _cache: dict = field(default_factory=dict, repr=False)
+
+    def adjacency(self, device) -> torch.Tensor:
+        """``[N, N]`` bool adjacency of the object graph (cached per device)."""
+        key = ("adjacency", str(device))
+        a = self._cache.get(key)
+        if a is None:
+            a = torch.zeros(self.num_nodes, self.num_nodes, dtype=torch.bool, device=device)
+            ei = self.edge_index.to(device)
+            a[ei[0], ei[1]] = True
+            self._cache[key] = a
+        return a
 
     def propagator(self, batch_size: int, device, dtype=torch.float32) -> Propagator:
         dense = self.num_nodes <= self.dense_max_nodes

@@ -233,3 +233,22 @@ def test_config_rejects_unknown_variant():
 def test_config_rejects_out_of_range_settings_by_name(setting, phrase):
     with pytest.raises(ValueError, match=phrase):
         ModelConfig(**setting)
+
+
+def test_dense_contact_path_gives_the_sparse_paths_numbers():
+    """dense_max_nodes picks [B, N, N] blocks or edge lists for the contact branch: same edges, same
+    normalisation, so the same prediction to float32 round-off (1e-5 relative)."""
+    static, pos = _cubes(gap=0.001, world=True)
+    sc = SceneGraph.from_static(static, has_contact=True, contact_radius=0.11)
+    torch.manual_seed(0)
+    dense = MDGS(ModelConfig(**SMALL))
+    sparse = MDGS(ModelConfig(**SMALL, dense_max_nodes=0))
+    sparse.load_state_dict(dense.state_dict())
+    g = torch.Generator().manual_seed(1)
+    x = pos.expand(4, -1, -1) + 0.02 * torch.randn(4, *pos.shape, generator=g)  # contacts differ per graph
+    v = torch.randn(x.shape, generator=g)
+    a, b = dense(sc, x, v), sparse(sc, x, v)
+    assert torch.equal(a.contact_edges, b.contact_edges) and a.contact_edges.shape[1] > 0
+    for p, q in ((a.force_contact, b.force_contact), (a.x, b.x), (a.v, b.v)):
+        torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-6)
+    assert a.force_contact.abs().sum() > 0

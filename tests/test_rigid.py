@@ -144,3 +144,18 @@ def test_trapezoidal_step_is_exact_for_constant_acceleration_about_a_fixed_axis(
     )[None]
     exp = exp + 1.0 + (vc0 + vc1) / 2 * dt
     assert torch.allclose(xn, exp, atol=1e-12)
+
+
+def test_rodrigues_rotation_equals_the_matrix_exponential():
+    """rotation_matrix (closed form) against torch.linalg.matrix_exp of the skew matrix: angles from
+    1e-12 rad (the Taylor branch) through 1e-4 (the switch) to several turns, float64 round-off."""
+    from mdgs.rigid import _skew_mat, rotation_matrix
+
+    g = torch.Generator().manual_seed(0)
+    axes = torch.nn.functional.normalize(torch.randn(64, 3, generator=g, dtype=torch.float64), dim=-1)
+    angles = torch.cat([torch.logspace(-12, 1.3, 60, dtype=torch.float64), torch.tensor([0.0, 1e-4, 9.99e-5, 3.14159])])
+    phi = axes * angles[:, None]
+    R = rotation_matrix(phi)
+    torch.testing.assert_close(R, torch.linalg.matrix_exp(_skew_mat(phi)), rtol=0, atol=1e-14)
+    torch.testing.assert_close(R @ R.transpose(-1, -2), torch.eye(3, dtype=torch.float64).expand(64, 3, 3),
+                               rtol=0, atol=1e-14)

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from mdgs.data.split import SplitData
-from mdgs.graphs import Propagator, SceneGraph, contact_edges, gcn_norm
+from mdgs.graphs import Propagator, SceneGraph, contact_edges, dense_contacts, gcn_norm, gcn_norm_adjacency
 from mdgs.joints import JointSet, joints_of, project_joints
 from mdgs.losses import constraint_loss, mse_loss, speeds_of
 from mdgs.models.base import Batch, ModelError, Simulator, State
@@ -76,7 +76,8 @@ class MDGSConfig:
         objects' velocity and angular velocity increments in the training data).
     dt : frame interval, s (used by "rigid", "twist" and "euler"); set from the data.
     cst_weight : weight of L_cst in the total loss (paper: summed, i.e. 1).
-    dense_max_nodes : object graphs up to this many nodes propagate densely.
+    dense_max_nodes : object graphs (and contact graphs) up to this many nodes propagate densely:
+        one [N, N] (or [B, N, N]) block instead of sparse edge lists; the same numbers.
     noise : training noise spec, "auto" (B.2: ``abs:4e-4`` for Cubli scenes, ``inc:0.06``
         otherwise), ``abs:S``, ``inc:F`` or ``none`` (:func:`noise_sigmas`).
     noise_sigma_x, noise_sigma_v : m and m/s, the resolved noise (set from the data; -1: unset).
@@ -409,7 +410,16 @@ class MDGS(Simulator):
         z = (self.node_features(scene, x, v, control) - self.z_mean) / self.z_std
         obj_prop = scene.object_graph.propagator(B, dev, dt)
         f_nc = c.force_scale * self.force_noncontact(obj_prop, z)  # Eq. (4)
-        if self.contact and scene.has_contact:
+        if self.contact and scene.has_contact and N <= c.dense_max_nodes:  # one [B, N, N] block per graph
+            a_c = dense_contacts(x.detach(), scene.obj, scene.contact_radius, scene.static)
+            union = Propagator(dense=gcn_norm_adjacency(a_c | scene.object_graph.adjacency(dev), dt))
+            z_glob = self.global_gather(union, z)  # Eq. (5)
+            f_c = c.force_scale * self.force_contact(Propagator(dense=gcn_norm_adjacency(a_c, dt)),
+                                                     torch.cat([z, z_glob], -1))  # Eq. (6)
+            f_c = f_c * a_c.any(-1, keepdim=True)  # zero off contact edges
+            b, i, j = a_c.nonzero(as_tuple=True)
+            ce = torch.stack([b * N + i, b * N + j])
+        elif self.contact and scene.has_contact:
             ce = contact_edges(x.detach(), scene.obj, scene.contact_radius, scene.static)
             z_glob = self.global_gather(scene.object_graph.union(ce, B, dev, dt), z)  # Eq. (5)
             con_prop = Propagator(csr=gcn_norm(ce, B * N, dt, dev))
