@@ -30,7 +30,14 @@ import numpy as np
 import torch
 
 from mdgs.data.split import SplitData
-from mdgs.graphs import Propagator, SceneGraph, contact_edges, dense_contacts, gcn_norm, gcn_norm_adjacency
+from mdgs.graphs import (
+    Propagator,
+    SceneGraph,
+    contact_edges,
+    dense_contacts,
+    gcn_norm,
+    gcn_norm_adjacency,
+)
 from mdgs.joints import JointSet, joints_of, project_joints
 from mdgs.losses import constraint_loss, mse_loss, speeds_of
 from mdgs.models.base import Batch, ModelError, Simulator, State
