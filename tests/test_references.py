@@ -62,6 +62,26 @@ def test_mujoco_cost_counts_its_steps_not_the_node_mapping(test_split, monkeypat
     assert c["ms_per_frame"] > 0
 
 
+def test_batched_mujoco_cost_steps_the_same_physics_as_the_rollout(test_split):
+    """The batched cost is mujoco.rollout: it must advance each row exactly as the accuracy rollout's
+    mj_step loop does (same frame of the data after one frame; 1e-9 m^2 as in the replay test)."""
+    import mujoco
+
+    model = _mujoco(test_split)
+    idx = np.arange(3) % test_split.x.shape[0]  # a batch of 3 rows (the batched path)
+    state = model.initial_state(test_split, idx, 0)
+    ctrl = torch.from_numpy(test_split.ctrl[idx, 0])
+    model.cost_step(state, ctrl)
+    packed = model._packed[2][:, -1]  # [B, nstate] full physics after one frame
+    nq = model._model.nq
+    qpos = packed[:, 1:1 + nq]  # mjSTATE_FULLPHYSICS starts with time, then qpos
+    stepped = model.step(state, ctrl).extra["qpos"].numpy()
+    np.testing.assert_allclose(qpos, stepped, rtol=0, atol=1e-9)
+    assert np.abs(qpos - test_split.qpos[idx, 0]).max() > 1e-6  # it did move
+    c = step_cost(model, test_split, batch=len(idx), frames=3, repeats=1)
+    assert c["ms_per_trajectory_frame"] > 0 and mujoco.mj_stateSize(model._model, mujoco.mjtState.mjSTATE_FULLPHYSICS) == packed.shape[1]
+
+
 def test_constant_twist_has_nothing_to_train(test_split):
     ref = MODELS["constant-twist"].from_data(test_split)
     assert not ref.learned and ref.parameter_count() == 0

@@ -181,18 +181,38 @@ class MuJoCoReference(Simulator):
         """What a frame costs MuJoCo: its integrator steps for every row, from the state in ``state``.
 
         The mapping of MuJoCo's state to element nodes (:meth:`step`) serves only the comparison
-        with the data, so the cost axis (:func:`mdgs.evaluate.cost.step_cost`) times this instead.
-        Returns ``state`` unchanged (the rows' MjData hold the stepped state).
+        with the data, so the cost axis (:func:`mdgs.evaluate.cost.step_cost`) times this instead:
+        one trajectory with ``mj_step`` on one MjData, a batch with ``mujoco.rollout`` (MuJoCo's
+        own batched stepping in C, one thread; the rows' full physics states are packed once per
+        state, outside the timed steps). Returns ``state`` unchanged.
         """
         m = self._model
         qpos, qvel = state.extra["qpos"].cpu().numpy(), state.extra["qvel"].cpu().numpy()
         c = ctrl.detach().cpu().numpy().astype(np.float64)
-        if len(self._rows) != len(qpos):
-            self._rows = [mujoco.MjData(m) for _ in range(len(qpos))]
-        for i, d in enumerate(self._rows):
-            d.qpos[:], d.qvel[:] = qpos[i], qvel[i]
+        B = len(qpos)
+        if B == 1:
+            d = self._data
+            d.qpos[:], d.qvel[:] = qpos[0], qvel[0]
             if m.nu:
-                d.ctrl[:] = c[i]
+                d.ctrl[:] = c[0]
             for _ in range(self._steps):
                 mujoco.mj_step(m, d)
+            return state
+        from mujoco import rollout as mj_rollout
+
+        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        key = (state.extra["qpos"].data_ptr(), B)
+        if getattr(self, "_packed", (None,))[0] != key:
+            d = self._data
+            init = np.empty((B, mujoco.mj_stateSize(m, spec)))
+            act = state.extra["act"].cpu().numpy()
+            for i in range(B):
+                d.qpos[:], d.qvel[:] = qpos[i], qvel[i]
+                if m.na:
+                    d.act[:] = act[i]
+                mujoco.mj_getState(m, d, init[i], spec)
+            self._packed = (key, init, np.empty((B, self._steps, init.shape[1])))
+        _, init, out = self._packed
+        control = c[:, None, :] if m.nu else None
+        mj_rollout.rollout(m, self._data, init, control, nstep=self._steps, state=out, skip_checks=False)
         return state
