@@ -56,13 +56,12 @@ def rotation_matrix(phi: torch.Tensor) -> torch.Tensor:
     ``R = I + a K + b K^2`` with ``K = [phi]_x``, ``a = sin(t) / t``, ``b = (1 - cos(t)) / t^2``,
     ``t = |phi|``; below ``t = 1e-4`` the Taylor series ``a = 1 - t^2/6``, ``b = 1/2 - t^2/24``
     (error under t^4/120 ~ 1e-18). Equal to ``torch.linalg.matrix_exp`` to float64 round-off, at a
-    fraction of its cost (tests/test_rigid.py).
+    fraction of its cost, with finite gradients at ``phi = 0`` (tests/test_rigid.py).
     """
     K = _skew_mat(phi)
     t2 = (phi * phi).sum(-1)
-    t = t2.sqrt()
-    small = t < 1e-4
-    ts = torch.where(small, torch.ones_like(t), t)
+    small = t2 < 1e-8  # t < 1e-4
+    ts = torch.where(small, torch.ones_like(t2), t2).sqrt()  # no sqrt at 0: its gradient would be inf (NaN through where)
     a = torch.where(small, 1 - t2 / 6, torch.sin(ts) / ts)
     b = torch.where(small, 0.5 - t2 / 24, (1 - torch.cos(ts)) / (ts * ts))
     eye = torch.eye(3, dtype=phi.dtype, device=phi.device)

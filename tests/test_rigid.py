@@ -159,3 +159,16 @@ def test_rodrigues_rotation_equals_the_matrix_exponential():
     torch.testing.assert_close(R, torch.linalg.matrix_exp(_skew_mat(phi)), rtol=0, atol=1e-14)
     torch.testing.assert_close(R @ R.transpose(-1, -2), torch.eye(3, dtype=torch.float64).expand(64, 3, 3),
                                rtol=0, atol=1e-14)
+
+
+def test_rodrigues_rotation_has_finite_gradients_at_zero_rotation():
+    """A body that does not turn (phi = 0 exactly, e.g. an untrained zero-output model on a translating
+    body) must not poison training with NaN gradients; d R / d phi at 0 is the skew generator."""
+    from mdgs.rigid import rotation_matrix
+
+    phi = torch.zeros(2, 3, dtype=torch.float64, requires_grad=True)
+    R = rotation_matrix(phi)
+    (R * torch.arange(9, dtype=torch.float64).view(3, 3)).sum().backward()
+    assert torch.isfinite(phi.grad).all()
+    # sum_ij W_ij dR_ij/dphi at 0 with R = I + [phi]_x: (W_32 - W_23, W_13 - W_31, W_21 - W_12)
+    torch.testing.assert_close(phi.grad[0], torch.tensor([7.0 - 5.0, 2.0 - 6.0, 3.0 - 1.0], dtype=torch.float64))
