@@ -78,9 +78,23 @@ class JointSet:
 
     joints: list[Joint] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
+    _cache: dict = field(default_factory=dict, repr=False)
 
     def __bool__(self) -> bool:
         return bool(self.joints)
+
+    def tensors(self, seg: torch.Tensor) -> list[tuple]:
+        """Per joint ``(q0, axis, anchor, body_pos, anchor in the parent frame, child's node indices)``
+        as float64 / int64 tensors on ``seg``'s device, built once per device and node map."""
+        key = (str(seg.device), seg.data_ptr(), seg.numel())
+        if key not in self._cache:
+            f = dict(dtype=torch.float64, device=seg.device)
+            out = []
+            for j in self.joints:
+                q0, a, ac, bp = (torch.as_tensor(v, **f) for v in (j.q0, j.axis, j.anchor, j.body_pos))
+                out.append((q0, a, ac, bp, bp + q0 @ ac, torch.nonzero(seg == j.child).flatten()))
+            self._cache[key] = out
+        return self._cache[key]
 
 
 def _posable(ref: np.ndarray) -> bool:
@@ -158,6 +172,7 @@ def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torc
         return x, v
     dev, f64 = x.device, torch.float64
     xd, vd = x.to(f64), v.to(f64)
+    seg = seg.to(dev)
     R, t = kabsch(ref.to(dev, f64), xd, seg, n_obj)  # [B, S, 3, 3], [B, S, 3]
     tw = twist(xd, vd, seg, n_obj, mass.to(dev))
     R, t = R.clone(), t.clone()
@@ -175,15 +190,9 @@ def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torc
             return eye, zero, zero, zero, zero
         return R[:, p], t[:, p], w[:, p], vc[:, p], c[:, p]
 
-    for j in joints.joints:
+    for j, (q0, a, ac, bp, ap, idx) in zip(joints.joints, joints.tensors(seg), strict=True):
         Rp, tp, wp, vcp, cp = parent_frame(j.parent)
-        q0 = torch.as_tensor(j.q0, dtype=f64, device=dev)
-        a = torch.as_tensor(j.axis, dtype=f64, device=dev)
-        ac = torch.as_tensor(j.anchor, dtype=f64, device=dev)
-        bp = torch.as_tensor(j.body_pos, dtype=f64, device=dev)
-        ap = bp + q0 @ ac  # anchor in the parent frame at qpos0
         Rc, wc = R[:, j.child], tw.omega[:, j.child]
-        idx = torch.nonzero(seg == j.child).flatten()
         p_rel = refd[idx] - ac  # child nodes about the anchor, child frame [k, 3]
         A = (Rp @ ap) + tp  # anchor on the parent, world [B, 3]
         zero_frame = Rp @ q0  # child frame at zero joint angle [B, 3, 3]
