@@ -27,6 +27,7 @@ import json
 import os
 import platform
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from importlib import metadata
@@ -155,7 +156,8 @@ def _evaluate_set(model: Simulator, d: SplitData, dev, failure_factor: float, an
             rep[f"pos_mse_t{t}"] = _per_traj_at(r, t)
             f = frame_of(t, F)
             rep[f"vel_mse_t{t}"] = [None if not np.isfinite(e) else float(e) for e in r.vel_mse[:, f]]
-        with np.errstate(invalid="ignore"):
+        with warnings.catch_warnings():  # frames where every trajectory has diverged: NaN, said as None
+            warnings.simplefilter("ignore", RuntimeWarning)
             idx, curve = _subsample(np.nanmean(np.where(np.isfinite(r.pos_mse), r.pos_mse, np.nan), 0))
         rep["curve_frames"], rep["pos_mse_curve"] = idx, curve
         return rep
