@@ -343,9 +343,27 @@ def read_results(out: str | os.PathLike, usable: bool = False) -> list[dict]:
             if key not in seen:
                 seen.add(key)
                 lines.append(rec)
+    lines = _newest_revisions(lines)
     if usable:
         lines = [ln for ln in lines if ln.get("status", "ok") in ("ok", "failed")]
     return lines
+
+
+def _newest_revisions(lines: list[dict]) -> list[dict]:
+    """Drop the lines of a cell that a newer revision of its model reran (the same cell but for
+    ``revision``, absent for 0): a results folder that holds both never mixes them in a table."""
+    def ident(ln):
+        return json.dumps({k: v for k, v in ln.items() if k in _SPEC_KEYS}, sort_keys=True)
+
+    newest: dict[str, int] = {}
+    for ln in lines:
+        newest[ident(ln)] = max(newest.get(ident(ln), 0), int(ln.get("revision", 0)))
+    return [ln for ln in lines if int(ln.get("revision", 0)) == newest[ident(ln)]]
+
+
+#: The keys of :meth:`Cell.spec` but ``revision``: what makes two results lines the same cell.
+_SPEC_KEYS = ("kind", "scene", "model", "label", "settings", "seed", "refine", "preset", "long_frames",
+              "long_trajectories", "failure_factor", "budget")
 
 
 def _repair(path: Path) -> None:
