@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from mdgs.rigid import twist
+from mdgs.rigid import rotation_matrix, twist
 from mdgs.structure import kabsch
 
 __all__ = ["Joint", "JointSet", "joints_of", "project_joints"]
@@ -152,12 +152,10 @@ def joints_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Joi
     return out
 
 
-def _rot_about(a: torch.Tensor, theta: torch.Tensor) -> torch.Tensor:
-    """Rotation by ``theta`` [B] about the unit axis ``a`` [3] -> [B, 3, 3] (Rodrigues)."""
-    K = torch.zeros(3, 3, dtype=a.dtype, device=a.device)
-    K[0, 1], K[0, 2], K[1, 0], K[1, 2], K[2, 0], K[2, 1] = -a[2], a[1], a[2], -a[0], -a[1], a[0]
-    s, c = torch.sin(theta)[:, None, None], torch.cos(theta)[:, None, None]
-    return torch.eye(3, dtype=a.dtype, device=a.device) + s * K + (1 - c) * (K @ K)
+def _point_velocity(vc: torch.Tensor, w: torch.Tensor, c: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """Velocity at world points ``y`` [B, k, 3] of a rigid body with mass-centre velocity ``vc``, angular
+    velocity ``w`` and mass centre ``c`` (each [B, 3]): ``vc + w x (y - c)``."""
+    return vc.unsqueeze(1) + torch.linalg.cross(w.unsqueeze(1).expand_as(y), y - c.unsqueeze(1), dim=-1)
 
 
 def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torch.Tensor, seg: torch.Tensor,
@@ -202,7 +200,7 @@ def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torc
             skew = N - N.transpose(-1, -2)
             vee = torch.stack([skew[:, 2, 1], skew[:, 0, 2], skew[:, 1, 0]], -1)
             theta = torch.atan2(vee @ a, N.diagonal(dim1=-2, dim2=-1).sum(-1) - torch.einsum("i,bij,j->b", a, N, a))
-            Rn = zero_frame @ _rot_about(a, theta)
+            Rn = zero_frame @ rotation_matrix(theta.unsqueeze(-1) * a)
         elif j.kind in ("slide", "weld"):
             Rn = zero_frame
         else:  # ball
@@ -215,25 +213,22 @@ def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torc
             tn = Rp @ bp + tp
         else:
             tn = A - Rn @ ac
-        def v_parent(y, vcp=vcp, wp=wp, cp=cp):  # velocity of the parent at world points y [B, k, 3]
-            return vcp.unsqueeze(1) + torch.linalg.cross(wp.unsqueeze(1).expand_as(y), y - cp.unsqueeze(1), dim=-1)
-
         xn = (Rn.unsqueeze(1) @ refd[idx].unsqueeze(-1)).squeeze(-1) + tn.unsqueeze(1)  # [B, k, 3]
         An = A.unsqueeze(1)
         if j.kind == "hinge":
             n = Rn @ a
             wn = wp + ((wc - wp) * n).sum(-1, keepdim=True) * n
-            vn = v_parent(An) + torch.linalg.cross(wn.unsqueeze(1).expand_as(xn), xn - An, dim=-1)
+            vn = _point_velocity(vcp, wp, cp, An) + torch.linalg.cross(wn.unsqueeze(1).expand_as(xn), xn - An, dim=-1)
         elif j.kind == "ball":
             wn = wc
-            vn = v_parent(An) + torch.linalg.cross(wn.unsqueeze(1).expand_as(xn), xn - An, dim=-1)
+            vn = _point_velocity(vcp, wp, cp, An) + torch.linalg.cross(wn.unsqueeze(1).expand_as(xn), xn - An, dim=-1)
         else:
             wn = wp
-            vn = v_parent(xn)
+            vn = _point_velocity(vcp, wp, cp, xn)
             if j.kind == "slide":
                 n = Rn @ a
                 v_child_A = tw.vc[:, j.child] + torch.linalg.cross(wc, A - tw.c[:, j.child], dim=-1)
-                rate = ((v_child_A - v_parent(An).squeeze(1)) * n).sum(-1, keepdim=True)
+                rate = ((v_child_A - _point_velocity(vcp, wp, cp, An).squeeze(1)) * n).sum(-1, keepdim=True)
                 vn = vn + (rate * n).unsqueeze(1)
         xo[:, idx], vo[:, idx] = xn, vn
         R[:, j.child], t[:, j.child], w[:, j.child] = Rn, tn, wn
