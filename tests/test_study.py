@@ -224,3 +224,8 @@ def test_report_keeps_only_the_newest_revision_of_a_cell(tmp_path):
     other = {**base, "cell": "c", "seed": 1, "one_step_mse": 3.0}  # another cell, revision 0 only: kept
     (tmp_path / "results.jsonl").write_text("".join(json.dumps(x) + "\n" for x in (old, new, other)))
     assert sorted(ln["cell"] for ln in read_results(tmp_path)) == ["b", "c"]
+    # the identity the report uses is every key of a cell's spec but its revision
+    from mdgs.study.runner import _SPEC_KEYS
+
+    study = load_study(TINY)
+    assert {k for c in cells_of(study) for k in c.spec(study)} - {"revision"} == set(_SPEC_KEYS)

@@ -110,6 +110,7 @@ class MuJoCoReference(Simulator):
         self._steps = sub // k
         self._data = mujoco.MjData(self._model)
         self._rows: list = []
+        self._packed: tuple = (None,)  # (state key, packed full-physics states, rollout output) of cost_step
         st = split.static
         self._body = np.asarray(st["node_body"], int)
         self._local = np.asarray(st["node_centroid"], float)
@@ -202,7 +203,7 @@ class MuJoCoReference(Simulator):
 
         spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
         key = (state.extra["qpos"].data_ptr(), B)
-        if getattr(self, "_packed", (None,))[0] != key:
+        if self._packed[0] != key:
             d = self._data
             init = np.empty((B, mujoco.mj_stateSize(m, spec)))
             act = state.extra["act"].cpu().numpy()
