@@ -29,6 +29,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 import torch
 
+from mdgs.actuation import DriveSet, actuation_forces, drives_of
 from mdgs.data.split import SplitData
 from mdgs.graphs import (
     Propagator,
@@ -57,6 +58,8 @@ CUBLI_NOISE = 4e-4
 #: moves in the training split (a cube at rest) would otherwise get a scale that magnifies any
 #: output noise on it a thousandfold. The small study's bodies all lie above it (0.097-1.4).
 OBJECT_SCALE_FLOOR = 0.05
+#: What MDGS knows of a scene's motors (``actuation``, :mod:`mdgs.actuation`).
+ACTUATION = ("none", "force", "step")
 #: Training noise of Appendix B.2 for the other scenes, as a fraction of the per-step increment std.
 INCREMENT_NOISE = 0.06
 
@@ -106,6 +109,11 @@ class MDGSConfig:
     The three defaults above are not the paper's (it has none of them): each was measured with 3
     seeds (``studies/mdgs-ablation.toml``, docs/mdgs-experiments.md); ``False`` for all three
     gives the paper's method.
+    actuation : what MDGS knows of the scene's motors (:mod:`mdgs.actuation`): "none" (the paper:
+        the controls only as per-node input features), "force" (the motors' loads on free bodies
+        join the force set F of Eq. 7, so the state network g and L_cst see them), "step" (as
+        "force", and the velocity change they give a free body over ``dt`` is added to g's
+        increment, so g learns only what the joints, contacts and coupling add).
     Scales left at 1.0, ``control_dim``, ``contact``, ``dt`` and the sigmas are filled from the
     training split by :meth:`MDGS.resolve_config`.
     """
@@ -128,6 +136,7 @@ class MDGSConfig:
     dt: float = 0.0
     cst_weight: float = 1.0
     dense_max_nodes: int = 256
+    actuation: str = "none"
     noise: str = "auto"
     noise_sigma_x: float = -1.0
     noise_sigma_v: float = -1.0
@@ -160,6 +169,8 @@ class MDGSConfig:
             raise ValueError(f"bound must be 'paper' or 'corrected', got {self.bound!r}")
         if self.integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {', '.join(INTEGRATORS)}, got {self.integrator!r}")
+        if self.actuation not in ACTUATION:
+            raise ValueError(f"actuation must be one of {', '.join(ACTUATION)}, got {self.actuation!r}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -280,6 +291,7 @@ class MDGS(Simulator):
         self._scenes: dict = {}
         self._sign: torch.Tensor | None = None
         self._joints = JointSet()
+        self._drives = DriveSet()
 
     # --- construction ------------------------------------------------------------------------
     @classmethod
@@ -351,6 +363,8 @@ class MDGS(Simulator):
         self._sign = torch.from_numpy(np.asarray(split.control_sign, np.float32))
         self._joints = (joints_of(split.mj_model(), split.static["node_body"], split.static["node_centroid"])
                         if self.config.joints else JointSet())
+        self._drives = (drives_of(split.mj_model(), split.static["node_body"], split.static["node_centroid"])
+                        if self.config.actuation != "none" else DriveSet())
 
     def scene_on(self, dev) -> SceneGraph:
         """The bound scene graph on ``dev`` (cached)."""
@@ -411,13 +425,15 @@ class MDGS(Simulator):
         return torch.cat(parts, dim=-1)
 
     def forward(self, scene: SceneGraph, x: torch.Tensor, v: torch.Tensor,
-                control: torch.Tensor | None = None, simulate: bool = False) -> Prediction:
+                control: torch.Tensor | None = None, simulate: bool = False,
+                ctrl: torch.Tensor | None = None) -> Prediction:
         """One step ``Z^(t) -> Z^(t+1)`` on ``scene`` (same device).
 
         x, v : [B, N, 3] centroid positions (m) and velocities (m/s) at t.
         control : [B, N, control_dim] per-node control features, or None.
         simulate : a simulation step (rollout, one-step validation) rather than a training pass:
             with ``joints`` the prediction is projected onto the scene's joints.
+        ctrl : [B, nu] the raw controls, for ``actuation`` (the motors' known loads); None: no loads.
         """
         c = self.config
         B, N, _ = x.shape
@@ -446,9 +462,19 @@ class MDGS(Simulator):
             ce = torch.zeros(2, 0, dtype=torch.long, device=dev)
             f_c = torch.zeros_like(f_nc)
         f = f_c + f_nc  # Eq. (7)
+        f_act = None
+        if self._drives and ctrl is not None:  # the motors' known loads join F (mdgs.actuation)
+            f_act = actuation_forces(x, ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj,
+                                     scene.mass.to(dev))
+            f = f + f_act
         lam = c.lam if c.lam is not None else 1.0 / c.force_scale
         out = self.state(obj_prop, torch.cat([z, lam * f], -1))  # Eqs. (8)-(9)
         sx, sv = self.scales(scene, dev)
+        if f_act is not None and c.actuation == "step":  # + the driven bodies' free velocity change over dt
+            f_drv = actuation_forces(x, ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj,
+                                     scene.mass.to(dev), reactions=False)
+            dv_act = f_drv * (c.dt / scene.mass.to(dev, dt).clamp_min(torch.finfo(dt).tiny)).view(1, N, 1)
+            out = out + torch.cat([torch.zeros_like(dv_act), dv_act / sv], -1)
         x_next, v_next = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx,
                                                    dv_scale=sv, dvc_scale=c.dvc_scale,
                                                    dw_scale=c.dw_scale)
@@ -466,7 +492,7 @@ class MDGS(Simulator):
 
     # --- the Simulator contract ------------------------------------------------------------------
     def step(self, state: State, ctrl: torch.Tensor) -> State:
-        p = self(self.scene_on(state.x.device), state.x, state.v, self.node_controls(ctrl), simulate=True)
+        p = self(self.scene_on(state.x.device), state.x, state.v, self.node_controls(ctrl), simulate=True, ctrl=ctrl)
         return State(p.x, p.v)
 
     def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
@@ -474,7 +500,7 @@ class MDGS(Simulator):
         cfg = self.config
         scene = self.scene_on(batch.x.device)
         moving = ~scene.static
-        p = self(scene, batch.x, batch.v, self.node_controls(batch.ctrl))
+        p = self(scene, batch.x, batch.v, self.node_controls(batch.ctrl), ctrl=batch.ctrl)
         l_mse = mse_loss(p.x, p.v, batch.x_next, batch.v_next, moving, *self.scales(scene, batch.x.device))  # Eq. (10)
         l_cst = constraint_loss(p.force, batch.x, batch.v, p.x, p.v, scene.mass, scene.tau, scene.obj, scene.n_obj,
                                 cfg.dt, moving=moving, bound=cfg.bound, speeds=speeds_of(cfg.variant),
@@ -487,7 +513,7 @@ class MDGS(Simulator):
     def validation_error(self, batch: Batch) -> torch.Tensor:
         """One-step L_mse (Eq. 10, scaled by the model's dx/dv scales, moving nodes)."""
         scene = self.scene_on(batch.x.device)
-        p = self(scene, batch.x, batch.v, self.node_controls(batch.ctrl), simulate=True)
+        p = self(scene, batch.x, batch.v, self.node_controls(batch.ctrl), simulate=True, ctrl=batch.ctrl)
         return mse_loss(p.x, p.v, batch.x_next, batch.v_next, ~scene.static, *self.scales(scene, batch.x.device))
 
     def perturb(self, batch: Batch, gen: torch.Generator) -> Batch:

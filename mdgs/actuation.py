@@ -1,0 +1,221 @@
+"""Known actuator loads as node forces: what each motor does to the bodies it drives, if they were free.
+
+MDGS's inputs carry a scene's actuator controls as per-node signs (``+ctrl_k`` on the body that
+actuator ``k`` drives, ``-ctrl_k`` on its parent; :func:`mdgs.data.split.control_map`): the
+network must learn from a handful of examples that a Cubli's brake command of 12 N m stops a
+flywheel spinning at 960 rad/s within a frame. For a motor, the load is known exactly from the
+MJCF, so this module turns it into forces on the elements, which MDGS adds to its predicted
+force set ``F`` (Eq. 7; ``actuation`` of :class:`mdgs.models.mdgs.MDGSConfig`).
+
+For actuator ``k`` on the hinge or slide joint of body ``c`` (parent ``p``), with generalised force
+``u_k = gear_k * clip(gain_k * clip(ctrl_k, ctrlrange), forcerange)`` (MuJoCo's motor: fixed gain,
+no bias, no activation dynamics) and the joint axis ``n = R_c a`` in the world (``a`` the axis in
+the child frame, ``R_c`` the child's rotation fitted to its nodes by :func:`mdgs.structure.kabsch`):
+
+- hinge: torque ``T = u_k n`` on ``c`` and ``-T`` on ``p``;
+- slide: force ``f = u_k n`` on ``c`` and ``-f`` on ``p``.
+
+Each body ``b`` then gets the acceleration field it would have as a free rigid body under its
+summed loads ``(f_b, T_b)``, with its MJCF mass ``M_b`` and inertia tensor ``I_b`` (``body_mass``,
+``body_inertia`` in ``body_iquat``, rotated by ``R_b``), about the mass-weighted centroid ``c_b`` of
+its elements (the centre of the rigid integrator's twists, :func:`mdgs.rigid.twist`)::
+
+    a_i = f_b / M_b + (I_b^-1 T_b) x (x_i - c_b),        node force  F_i = m_i a_i   (N)
+
+so a couple's node forces sum to zero, as the internal loads of a motor must.
+(Newton-Euler without the gyroscopic term, which does not depend on the control). The rigid
+part of the field ``a_i dt`` (:func:`mdgs.rigid.project`) is the velocity change the actuator
+alone gives a free body over a frame: the constraint forces of the joints and contacts, and
+the coupling through them, are left to the network. Actuators that are not motors (position or
+velocity servos, activation dynamics), that drive a tendon, a site or a ball or free joint, or
+whose body's rotation its elements do not fix, are listed in ``skipped`` and contribute nothing.
+Everything runs in float64; shapes ``[B, N, 3]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from mdgs.structure import kabsch, segment_mean
+
+__all__ = ["Drive", "DriveSet", "drives_of", "actuation_forces"]
+
+
+@dataclass(frozen=True)
+class Drive:
+    """One motor on one hinge or slide joint, between two objects (indices of :class:`mdgs.graphs.SceneGraph`).
+
+    actuator : index of the actuator (column of the controls).
+    child : object the joint belongs to; parent : its parent object, or -1 for the world.
+    kind : "hinge" (a torque about ``axis``) or "slide" (a force along ``axis``).
+    axis : [3] unit joint axis in the child's body frame.
+    gain : generalised force per unit actuator force (``gear[0]``).
+    force_gain : actuator force per unit control (``gainprm[0]``).
+    ctrl_range, force_range : (lo, hi) clamps, or None when the MJCF does not limit.
+    """
+
+    actuator: int
+    child: int
+    parent: int
+    kind: str
+    axis: np.ndarray
+    gain: float
+    force_gain: float
+    ctrl_range: tuple[float, float] | None
+    force_range: tuple[float, float] | None
+
+
+@dataclass
+class DriveSet:
+    """The motors whose loads :func:`actuation_forces` applies, the bodies' inertial data, and what is skipped (why).
+
+    mass : [S] MJCF mass of each object's body; inv_inertia : [S, 3, 3] inverse inertia tensor
+    about the mass centre, in the body frame (zero for an object whose inertia is singular).
+    """
+
+    drives: list[Drive] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    mass: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    inv_inertia: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    def __bool__(self) -> bool:
+        return bool(self.drives)
+
+    def tensors(self, dev) -> dict:
+        """Stacked float64 / int64 tensors of the drives and bodies on ``dev`` (built once per device)."""
+        key = str(dev)
+        if key not in self._cache:
+            f = dict(dtype=torch.float64, device=dev)
+            d = self.drives
+            lo = [(dr.ctrl_range or (-np.inf, np.inf))[0] for dr in d]
+            hi = [(dr.ctrl_range or (-np.inf, np.inf))[1] for dr in d]
+            flo = [(dr.force_range or (-np.inf, np.inf))[0] for dr in d]
+            fhi = [(dr.force_range or (-np.inf, np.inf))[1] for dr in d]
+            self._cache[key] = {
+                "actuator": torch.tensor([dr.actuator for dr in d], dtype=torch.long, device=dev),
+                "child": torch.tensor([dr.child for dr in d], dtype=torch.long, device=dev),
+                "parent": torch.tensor([dr.parent for dr in d], dtype=torch.long, device=dev),
+                "torque": torch.tensor([dr.kind == "hinge" for dr in d], dtype=torch.bool, device=dev),
+                "axis": torch.as_tensor(np.array([dr.axis for dr in d]).reshape(-1, 3), **f),
+                "gain": torch.tensor([dr.gain for dr in d], **f),
+                "force_gain": torch.tensor([dr.force_gain for dr in d], **f),
+                "ctrl_lo": torch.tensor(lo, **f), "ctrl_hi": torch.tensor(hi, **f),
+                "force_lo": torch.tensor(flo, **f), "force_hi": torch.tensor(fhi, **f),
+                "mass": torch.as_tensor(self.mass, **f),
+                "inv_inertia": torch.as_tensor(self.inv_inertia, **f),
+            }
+        return self._cache[key]
+
+
+def _posable(ref: np.ndarray) -> bool:
+    """Whether element centroids ``ref`` [k, 3] fix a rotation: at least 3, not all on a line."""
+    if len(ref) < 3:
+        return False
+    s = np.linalg.svd(ref - ref.mean(0), compute_uv=False)
+    return bool(s[0] > 0 and s[1] > 1e-6 * s[0])
+
+
+def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> DriveSet:
+    """The motors of a scene and its objects' inertial data (objects: the sorted distinct bodies with nodes).
+
+    mj_model : the scene's ``mujoco.MjModel``; node_body : [N] MuJoCo body of each node
+    (``static["node_body"]``); node_centroid : [N, 3] element centroids in their body frames.
+    """
+    import mujoco
+
+    m = mj_model
+    node_body = np.asarray(node_body, int)
+    node_centroid = np.asarray(node_centroid, float)
+    bodies = np.unique(node_body)
+    obj_of = {int(b): k for k, b in enumerate(bodies)}
+    S = len(bodies)
+    mass, inv_inertia = np.zeros(S), np.zeros((S, 3, 3))
+    posable = np.zeros(S, bool)
+    for k, b in enumerate(int(x) for x in bodies):
+        q = np.zeros(9)
+        mujoco.mju_quat2Mat(q, m.body_iquat[b])
+        q = q.reshape(3, 3)
+        inertia = q @ np.diag(m.body_inertia[b]) @ q.T
+        mass[k] = float(m.body_mass[b])
+        if b != 0 and np.linalg.cond(inertia) < 1e12:
+            inv_inertia[k] = np.linalg.inv(inertia)
+        posable[k] = _posable(node_centroid[node_body == b])
+    out = DriveSet(mass=mass, inv_inertia=inv_inertia)
+    name = lambda kind, i: mujoco.mj_id2name(m, kind, i) or f"#{i}"  # noqa: E731
+    for k in range(m.nu):
+        a_name = f"actuator {name(mujoco.mjtObj.mjOBJ_ACTUATOR, k)}"
+        motor = (int(m.actuator_dyntype[k]) == int(mujoco.mjtDyn.mjDYN_NONE)
+                 and int(m.actuator_gaintype[k]) == int(mujoco.mjtGain.mjGAIN_FIXED)
+                 and int(m.actuator_biastype[k]) == int(mujoco.mjtBias.mjBIAS_NONE))
+        if not motor:
+            out.skipped.append(f"{a_name}: not a motor (its force depends on the state or on activation)")
+            continue
+        if int(m.actuator_trntype[k]) != int(mujoco.mjtTrn.mjTRN_JOINT):
+            out.skipped.append(f"{a_name}: drives no single joint (tendon, site or other transmission)")
+            continue
+        j = int(m.actuator_trnid[k, 0])
+        kind = {int(mujoco.mjtJoint.mjJNT_HINGE): "hinge", int(mujoco.mjtJoint.mjJNT_SLIDE): "slide"}.get(
+            int(m.jnt_type[j]))
+        if kind is None:
+            out.skipped.append(f"{a_name}: drives a ball or free joint")
+            continue
+        b = int(m.jnt_bodyid[j])
+        p = int(m.body_parentid[b])
+        if b not in obj_of:
+            out.skipped.append(f"{a_name}: its body has no elements")
+            continue
+        if not posable[obj_of[b]]:
+            out.skipped.append(f"{a_name}: its body's elements do not fix its rotation (fewer than 3, or on a line)")
+            continue
+        if p != 0 and p not in obj_of:
+            out.skipped.append(f"{a_name}: its parent body has no elements (the reaction would be lost)")
+            continue
+        axis = np.array(m.jnt_axis[j], float)
+        ctrl_range = tuple(float(c) for c in m.actuator_ctrlrange[k]) if bool(m.actuator_ctrllimited[k]) else None
+        force_range = tuple(float(c) for c in m.actuator_forcerange[k]) if bool(m.actuator_forcelimited[k]) else None
+        out.drives.append(Drive(k, obj_of[b], obj_of[p] if p != 0 else -1, kind, axis / np.linalg.norm(axis),
+                                float(m.actuator_gear[k, 0]), float(m.actuator_gainprm[k, 0]),
+                                ctrl_range, force_range))
+    return out
+
+
+def actuation_forces(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor, seg: torch.Tensor,
+                     n_obj: int, mass: torch.Tensor, reactions: bool = True) -> torch.Tensor:
+    """Node forces ``F_i = m_i a_i`` [B, N, 3] (N) of the motors' loads on free bodies (module docstring).
+
+    x : [B, N, 3] node positions (m); ctrl : [B, nu] controls (actuator units); ref : [N, 3] element
+    centroids in their body frames; seg : [N] object of each node; mass : [N] element masses (kg).
+    reactions : include the loads on the parents (False: the driven bodies' loads only).
+    Returned in ``x``'s dtype; zero when there are no drives.
+    """
+    if not drives:
+        return torch.zeros_like(x)
+    dev, f64 = x.device, torch.float64
+    T = drives.tensors(dev)
+    xd, seg = x.to(f64), seg.to(dev)
+    R, _ = kabsch(ref.to(dev, f64), xd, seg, n_obj)  # [B, S, 3, 3]: body rotations
+    B = x.shape[0]
+    c = ctrl.to(dev, f64)[:, T["actuator"]]
+    c = torch.minimum(torch.maximum(c, T["ctrl_lo"]), T["ctrl_hi"])
+    u = T["gain"] * torch.minimum(torch.maximum(T["force_gain"] * c, T["force_lo"]), T["force_hi"])  # [B, D]
+    n = (R[:, T["child"]] @ T["axis"].unsqueeze(-1)).squeeze(-1)  # world axes [B, D, 3]
+    load = u.unsqueeze(-1) * n
+    tq = T["torque"].view(1, -1, 1)
+    # summed loads per object; the world (parent -1) takes its reactions in slot n_obj, dropped
+    force = xd.new_zeros(B, n_obj + 1, 3)
+    torque = xd.new_zeros(B, n_obj + 1, 3)
+    parent = torch.where(T["parent"] < 0, n_obj, T["parent"]) if reactions else torch.full_like(T["parent"], n_obj)
+    torque.index_add_(1, T["child"], torch.where(tq, load, 0.0)).index_add_(1, parent, torch.where(tq, -load, 0.0))
+    force.index_add_(1, T["child"], torch.where(tq, 0.0, load)).index_add_(1, parent, torch.where(tq, 0.0, -load))
+    force, torque = force[:, :n_obj], torque[:, :n_obj]
+    md = mass.to(dev, f64)
+    cen = segment_mean(xd, seg, n_obj, md)  # [B, S, 3] element centroids
+    alpha = (R @ T["inv_inertia"] @ R.transpose(-1, -2) @ torque.unsqueeze(-1)).squeeze(-1)  # I_w^-1 T
+    lin = force / T["mass"].clamp_min(torch.finfo(f64).tiny).view(1, -1, 1)
+    r = xd - cen[:, seg]
+    acc = lin[:, seg] + torch.linalg.cross(alpha[:, seg], r, dim=-1)
+    return (md.view(1, -1, 1) * acc).to(x.dtype)

@@ -1,0 +1,155 @@
+"""Motors' known loads (mdgs.actuation): on bodies whose joint lets them respond freely along the
+joint, the loads give exactly MuJoCo's joint acceleration; a motor's couple sums to zero; actuators
+the module cannot model are named and skipped; MDGS with ``actuation="step"`` starts from the
+driven bodies' free response.
+
+Tolerances: everything is float64 and the inertias are MuJoCo's own, so accelerations agree to
+1e-9 relative; the elements' positions are built from MuJoCo's body poses in the test.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from mdgs.actuation import actuation_forces, drives_of
+from mdgs.data.generate import GenerateConfig, generate
+from mdgs.data.split import load_split
+from mdgs.graphs import SceneGraph
+from mdgs.models import MODELS
+from mdgs.models.base import State, batch_of
+from mdgs.rigid import project, twist
+
+# a tilted disc spinning on a hinge through its centre (a principal axis), a tilted cart on a
+# slide, both driven by motors (gear, control and force limits), and a position servo
+MOTORS = """<mujoco model="motors">
+  <option timestep="0.002" gravity="0 0 0"/>
+  <worldbody>
+    <body name="disc" pos="0 0 1" quat="0.9 0.3 0.2 0.1">
+      <joint name="spin" type="hinge" axis="0 0 1"/>
+      <geom type="cylinder" size="0.1 0.02" density="1000"/>
+    </body>
+    <body name="cart" pos="1 0 1" quat="0.95 0 0.31 0">
+      <joint name="rail" type="slide" axis="1 0 0"/>
+      <geom type="box" size="0.1 0.05 0.05" density="500"/>
+    </body>
+    <body name="arm" pos="-1 0 1">
+      <joint name="pivot" type="hinge" axis="0 1 0"/>
+      <geom type="box" size="0.05 0.05 0.2" density="500"/>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor name="m_spin" joint="spin" gear="2" ctrlrange="-1 1"/>
+    <motor name="m_rail" joint="rail" gear="3" forcerange="-0.5 0.5"/>
+    <position name="servo" joint="pivot" kp="10"/>
+  </actuator>
+</mujoco>
+"""
+
+
+@pytest.fixture(scope="module")
+def splits(tmp_path_factory):
+    root = tmp_path_factory.mktemp("actuation")
+    (root / "motors.xml").write_text(MOTORS)
+    out = {}
+    for name, cfg in [
+        ("motors", GenerateConfig(scene="", mjcf=str(root / "motors.xml"), substeps=5, preset="tiny",
+                                  out=str(root / "motors"))),
+        ("cubli-triple", GenerateConfig(scene="cubli-triple", preset="tiny", out=str(root / "cubli"))),
+    ]:
+        generate(cfg)
+        out[name] = (load_split(Path(cfg.out) / "train.h5"), load_split(Path(cfg.out) / "test.h5"))
+    return out
+
+
+def _free_response(d, x, ctrl, reactions=True):
+    """(linear, angular) velocity change per unit time [S, 3] of each object under the motors' loads."""
+    sc = SceneGraph.from_static(d.static, has_contact=d.has_contact)
+    ds = drives_of(d.mj_model(), d.static["node_body"], d.static["node_centroid"])
+    f = actuation_forces(x, ctrl, ds, sc.ref_shape, sc.obj, sc.n_obj, sc.mass, reactions=reactions)
+    mass = sc.mass.double()
+    tw = twist(x, torch.zeros_like(x), sc.obj, sc.n_obj, mass)
+    return (*project(f / mass.view(1, -1, 1), x, tw, sc.obj, sc.n_obj, mass), f, sc, ds)
+
+
+def test_servos_are_skipped_and_named(splits):
+    d = splits["motors"][1]
+    ds = drives_of(d.mj_model(), d.static["node_body"], d.static["node_centroid"])
+    assert [dr.kind for dr in ds.drives] == ["hinge", "slide"]
+    assert len(ds.skipped) == 1 and "servo" in ds.skipped[0] and "not a motor" in ds.skipped[0]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_motor_loads_give_mujocos_joint_acceleration(splits, seed):
+    d = splits["motors"][1]
+    m = d.mj_model()
+    m.opt.gravity[:] = 0
+    data = mujoco.MjData(m)
+    rng = np.random.default_rng(seed)
+    data.qpos[:] = rng.normal(size=m.nq)
+    data.ctrl[:] = rng.uniform(-2, 2, size=m.nu)  # the spin motor's |ctrl| > 1 is clamped to ctrlrange
+    mujoco.mj_forward(m, data)
+    body, cen = np.asarray(d.static["node_body"]), np.asarray(d.static["node_centroid"])
+    x = np.stack([data.xpos[b] + data.xmat[b].reshape(3, 3) @ c for b, c in zip(body, cen, strict=True)])
+    ctrl = torch.tensor(data.ctrl[None], dtype=torch.float64)
+    dvc, dw, _, sc, _ = _free_response(d, torch.from_numpy(x)[None], ctrl)
+    obj = {int(b): k for k, b in enumerate(np.unique(body))}
+    disc, cart = obj[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "disc")], obj[
+        mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "cart")]
+    j_spin, j_rail = (mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n) for n in ("spin", "rail"))
+    n_spin = data.xaxis[j_spin]
+    n_rail = data.xaxis[j_rail]
+    a_spin, a_rail = data.qacc[m.jnt_dofadr[j_spin]], data.qacc[m.jnt_dofadr[j_rail]]
+    assert abs(a_spin) > 1 and abs(a_rail) > 0.1  # the motors do push
+    np.testing.assert_allclose(dw[0, disc].numpy(), a_spin * n_spin, rtol=1e-9, atol=1e-9 * abs(a_spin))
+    np.testing.assert_allclose(dvc[0, cart].numpy(), a_rail * n_rail, rtol=1e-9, atol=1e-9 * abs(a_rail))
+    np.testing.assert_allclose(dvc[0, disc].numpy(), 0, atol=1e-9)  # a couple moves no mass centre
+    arm = obj[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "arm")]
+    assert float(dw[0, arm].abs().max()) == 0.0  # the servo is skipped, not guessed
+
+
+def test_a_motors_couple_sums_to_zero_and_reactions_can_be_left_out(splits):
+    d = splits["cubli-triple"][1]
+    x = torch.from_numpy(d.x[0, 3:5]).double()
+    ctrl = torch.from_numpy(np.array([[0.5, -1.0, 2.0], [12.0, 0.0, -3.0]]))
+    dvc, dw, f, sc, ds = _free_response(d, x, ctrl)
+    assert len(ds.drives) == 3 and all(dr.kind == "hinge" for dr in ds.drives)
+    scale = float(f.abs().max())
+    np.testing.assert_allclose(f.sum(1).numpy(), 0, atol=1e-12 * scale)  # internal loads
+    cube = ds.drives[0].parent
+    assert all(dr.parent == cube for dr in ds.drives) and float(dw[:, cube].norm(dim=-1).min()) > 0
+    _, dw_drv, f_drv, _, _ = _free_response(d, x, ctrl, reactions=False)
+    assert float(f_drv[:, sc.obj == cube].abs().max()) == 0.0
+    wheels = [dr.child for dr in ds.drives]
+    np.testing.assert_allclose(dw_drv[:, wheels].numpy(), dw[:, wheels].numpy(), rtol=1e-12)
+
+
+def test_mdgs_step_actuation_starts_from_the_driven_bodies_free_response(splits):
+    tr, te = splits["cubli-triple"]
+    cls = MODELS["mdgs"]
+    b = batch_of(te, te.pairs(0)[:6], "cpu")
+    b.ctrl[:] = torch.tensor([3.0, -2.0, 1.0])
+    omega = {}
+    for act in ("none", "step"):
+        model = cls.from_data(tr, cls.Config(actuation=act))  # zero_init: g's output starts at zero
+        model.bind(te)
+        model.eval()
+        sc = model.scene_on("cpu")
+        with torch.no_grad():
+            p = model.step(State(b.x, b.v), b.ctrl)
+        omega[act] = twist(p.x.double(), p.v.double(), sc.obj, sc.n_obj, sc.mass.double()).omega
+    ds = model._drives
+    m = te.mj_model()
+    for dr in ds.drives:
+        bid = int(np.unique(te.static["node_body"])[dr.child])
+        q = np.zeros(9)
+        mujoco.mju_quat2Mat(q, m.body_iquat[bid])
+        q = q.reshape(3, 3)
+        i_axis = float(dr.axis @ q @ np.diag(m.body_inertia[bid]) @ q.T @ dr.axis)  # the wheel's axis is principal
+        expect = dr.gain * float(b.ctrl[0, dr.actuator]) / i_axis * model.config.dt
+        dw = (omega["step"] - omega["none"])[:, dr.child].numpy()
+        np.testing.assert_allclose(np.linalg.norm(dw, axis=-1), abs(expect), rtol=1e-3)
