@@ -153,3 +153,23 @@ def test_mdgs_step_actuation_starts_from_the_driven_bodies_free_response(splits)
         expect = dr.gain * float(b.ctrl[0, dr.actuator]) / i_axis * model.config.dt
         dw = (omega["step"] - omega["none"])[:, dr.child].numpy()
         np.testing.assert_allclose(np.linalg.norm(dw, axis=-1), abs(expect), rtol=1e-3)
+
+
+def test_constant_twist_with_motors_turns_only_the_driven_wheels(splits):
+    tr, te = splits["cubli-triple"]
+    cls = MODELS["constant-twist"]
+    b = batch_of(te, te.pairs(0)[:4], "cpu")
+    out = {}
+    for motors in (False, True):
+        ref = cls.from_data(te, cls.Config(motors=motors))
+        ref.bind(te)
+        for name, ctrl in (("zero", torch.zeros_like(b.ctrl)), ("on", torch.full_like(b.ctrl, 2.0))):
+            p = ref.step(State(b.x, b.v), ctrl)
+            sc = ref._scene
+            out[motors, name] = twist(p.x.double(), p.v.double(), sc.obj, sc.n_obj, sc.mass.double()).omega
+    assert torch.equal(out[True, "zero"], out[False, "zero"])  # no control, no change
+    dw = (out[True, "on"] - out[False, "on"]).norm(dim=-1)
+    ds = drives_of(te.mj_model(), te.static["node_body"], te.static["node_centroid"])
+    wheels = [dr.child for dr in ds.drives]
+    others = [o for o in range(dw.shape[1]) if o not in wheels]
+    assert float(dw[:, wheels].min()) > 1.0 and float(dw[:, others].max()) == 0.0  # the cube keeps its twist

@@ -49,6 +49,7 @@ name = "mdgs"
     (GOOD.replace('[[models]]\nname = "mdgs"', '[[models]]\nname = "mdgs"\nset = { hiden = 3 }'), "no setting 'hiden'"),
     (GOOD.replace('[[models]]\nname = "mdgs"', '[[models]]\nname = "mujoco"'), "is a reference"),
     (GOOD.replace('preset = "tiny"', 'preset = "huge"'), "preset 'huge' is unknown"),
+    (GOOD + "[references]\nmotors = 1\n", "should be of type bool"),
 ])
 def test_malformed_study_file_is_one_sentence_and_exit_2(tmp_path, text, phrase):
     path = _write(tmp_path, text)
@@ -82,6 +83,22 @@ def test_cells_cover_the_grid_once_and_shares_partition_it():
     # a job array of 3 shares runs every cell exactly once
     shares = [[c.key(study) for k, c in enumerate(cells) if k % 3 == i] for i in range(3)]
     assert sorted(sum(shares, [])) == sorted(keys)
+
+
+def test_motor_twist_reference_is_one_more_cell_per_scene_and_not_the_ratio_base(tmp_path):
+    plain = load_study(_write(tmp_path, GOOD))
+    study = load_study(_write(tmp_path, GOOD + "[references]\nmotors = true\n"))
+    extra = [c for c in cells_of(study) if c.key(study) not in {k.key(plain) for k in cells_of(plain)}]
+    assert [(c.kind, c.model, c.label, dict(c.settings)) for c in extra] == [
+        ("reference", "constant-twist", "constant twist + motors", {"motors": True})]
+    # the "x constant twist" tables divide by the plain reference, whichever line comes first
+    base = {"kind": "reference", "model": "constant-twist", "scene": "s", "seed": 0, "status": "ok", "refine": 1}
+    sets = lambda v: {"test": {"pos_mse_t40": [v, v], "pos_mse_t110": [v, v]}}  # noqa: E731
+    motors = {**base, "label": "constant twist + motors", "settings": {"motors": True}, "sets": sets(1.0)}
+    twist_ = {**base, "label": "constant twist", "settings": {}, "sets": sets(4.0)}
+    run = {**base, "kind": "learned", "model": "mdgs", "label": "mdgs", "settings": {}, "sets": sets(2.0)}
+    from mdgs.study.tables import _ratio_cell
+    assert _ratio_cell([run], [motors, twist_], "test", 40) == "0.5"  # 2 / 4, not 2 / 1
 
 
 def _accuracy_tables(lines):

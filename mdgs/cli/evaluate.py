@@ -20,8 +20,11 @@ def _parse_reference(text: str) -> tuple[str, dict]:
         if k < 1:
             fail(f"--reference {text}: the timestep factor must be at least 1")
         return name, {"dt_factor": k}
+    if name == "constant-twist" and arg == "motors":
+        return name, {"motors": True}
     if arg:
-        fail(f"--reference {text}: {name} takes no setting")
+        fail(f"--reference {text}: {name} takes no setting" + (" but motors (constant-twist:motors)"
+                                                                if name == "constant-twist" else ""))
     return name, {}
 
 

@@ -5,6 +5,9 @@ Both meet the :class:`~mdgs.models.base.Simulator` contract and have nothing to 
 - :class:`ConstantTwist` (``constant-twist``): every moving body keeps its velocity and
   angular velocity (no forces, no contact) and moves rigidly over the frame. A learned
   simulator that does not beat it has learned no dynamics (gravity, contact, actuation).
+  With ``motors=True`` ("constant twist + motors") the bodies that motors drive also take the
+  velocity change the motors' known loads give them as free bodies (:mod:`mdgs.actuation`,
+  reactions on the parents left out): the physics of the controls a learned model is handed.
 - :class:`MuJoCoReference` (``mujoco``): the physics engine that made the data, replaying
   each test trajectory from its recorded initial state under the recorded controls, with the
   timestep ``dt_factor`` times the dataset's (``substeps / dt_factor`` steps per frame). At
@@ -20,17 +23,29 @@ import mujoco
 import numpy as np
 import torch
 
+from mdgs.actuation import DriveSet, actuation_forces, drives_of
 from mdgs.data.split import SplitData
 from mdgs.graphs import SceneGraph
 from mdgs.models.base import ModelError, Simulator, State
-from mdgs.rigid import advance, twist
+from mdgs.rigid import advance, project, twist
 
 __all__ = ["ConstantTwist", "ConstantTwistConfig", "MuJoCoReference", "MuJoCoConfig"]
 
 
 @dataclass(frozen=True)
 class ConstantTwistConfig:
-    """The constant-twist reference has no settings."""
+    """Settings of the constant-twist reference.
+
+    motors : add the motors' known loads on the bodies they drive, as free bodies
+        (:func:`mdgs.actuation.actuation_forces` with ``reactions=False``); the label becomes
+        "constant twist + motors".
+    """
+
+    motors: bool = False
+
+    def __post_init__(self):
+        if not isinstance(self.motors, bool):
+            raise ValueError(f"motors must be true or false, got {self.motors!r}")
 
 
 class ConstantTwist(Simulator):
@@ -46,13 +61,21 @@ class ConstantTwist(Simulator):
         super().bind(split)
         self._scene = SceneGraph.from_static(split.static, has_contact=split.has_contact)
         self._dt = float(split.frame_dt)
+        self._drives = (drives_of(split.mj_model(), split.static["node_body"], split.static["node_centroid"])
+                        if self.config.motors else DriveSet())
 
     def step(self, state: State, ctrl: torch.Tensor) -> State:
         x, v = state.x, state.v
         sc = self._scene
         seg, mass = sc.obj.to(x.device), sc.mass.to(x.device)
         tw = twist(x, v, seg, sc.n_obj, mass)
-        xn, vn = advance(x, tw, tw.vc, tw.omega, self._dt, seg)
+        vc, w = tw.vc, tw.omega
+        if self._drives:  # + the driven bodies' free response to the motors over the frame
+            f = actuation_forces(x, ctrl, self._drives, sc.ref_shape.to(x.device), seg, sc.n_obj, mass, reactions=False)
+            m = mass.to(f.dtype).clamp_min(torch.finfo(f.dtype).tiny).view(1, -1, 1)
+            dvc, dw = project(f / m * self._dt, x, tw, seg, sc.n_obj, mass)
+            vc, w = vc + dvc, w + dw
+        xn, vn = advance(x, tw, vc, w, self._dt, seg)
         m = (~sc.static).to(x.device).view(1, -1, 1)
         return State(torch.where(m, xn, x), torch.where(m, vn, torch.zeros_like(vn)))
 

@@ -31,6 +31,7 @@ A study file has these tables (every key optional unless marked; defaults in the
 
     [references]
     mujoco_dt_factors = [1, 2, 5, 10, 20]
+    motors = true                       # also "constant twist + motors" (default false)
 
     [resolution]                        # MDGS error and cost against the element resolution
     model = "mdgs"
@@ -111,6 +112,7 @@ class StudyConfig:
     scenes: tuple[SceneEntry, ...] = ()
     models: tuple[ModelEntry, ...] = ()
     mujoco_dt_factors: tuple[int, ...] = (1, 2, 5, 10, 20)
+    motor_twist: bool = False
     resolution_model: str = "mdgs"
     resolution_refine: tuple[int, ...] = ()
     resolution_seeds: tuple[int, ...] = (0,)
@@ -257,8 +259,9 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
         raise StudyError(f"{f}: two [[models]] share a label; give each a distinct label")
 
     rf = _take(doc, "references", dict, f, {})
-    _unknown(rf, {"mujoco_dt_factors"}, f"{f} [references]")
+    _unknown(rf, {"mujoco_dt_factors", "motors"}, f"{f} [references]")
     dts = _ints(rf, "mujoco_dt_factors", f"{f} [references]", (1, 2, 5, 10, 20), lo=1)
+    motors = _take(rf, "motors", bool, f"{f} [references]", False)
 
     rs = _take(doc, "resolution", dict, f, {})
     where = f"{f} [resolution]"
@@ -270,5 +273,5 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
     return StudyConfig(name=name, path=str(path.resolve()), preset=preset, seeds=seeds, device=device,
                        long_frames=long_frames, long_trajectories=long_traj, failure_factor=failure,
                        sensitivity=sens, sensitivity_seeds=sens_seeds, budget=budget, scenes=tuple(scenes),
-                       models=tuple(models), mujoco_dt_factors=dts, resolution_model=rmodel,
+                       models=tuple(models), mujoco_dt_factors=dts, motor_twist=motors, resolution_model=rmodel,
                        resolution_refine=refine, resolution_seeds=_ints(rs, "seeds", where, (0,)))

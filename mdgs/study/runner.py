@@ -92,6 +92,8 @@ def cells_of(study: StudyConfig) -> list[Cell]:
     out = []
     for sc in study.scenes:
         out.append(Cell("reference", sc, "constant-twist", "constant twist"))
+        if study.motor_twist:
+            out.append(Cell("reference", sc, "constant-twist", "constant twist + motors", (("motors", True),)))
         for k in study.mujoco_dt_factors:
             out.append(Cell("reference", sc, "mujoco", f"mujoco dt x{k}", (("dt_factor", k),)))
         if study.sensitivity > 0:
