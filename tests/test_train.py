@@ -16,6 +16,9 @@ from mdgs.cli import app
 from mdgs.data.generate import GenerateConfig, generate
 from mdgs.data.split import control_map, load_split
 from mdgs.evaluate import DIVERGENCE_FACTOR, evaluate
+from mdgs.graphs import SceneGraph
+from mdgs.models import MODELS
+from mdgs.models.base import batch_of
 from mdgs.models.mdgs import ModelConfig, noise_sigmas
 from mdgs.train import TrainConfig, train
 
@@ -93,6 +96,30 @@ def test_noise_is_paper_absolute_for_cubli_and_increment_fraction_otherwise(data
     dx = (d.x[:, 1:] - d.x[:, :-1])[:, :, d.moving]
     assert sx == pytest.approx(0.06 * dx.std(), rel=1e-6)
     assert sx < 0.1 * d.x[:, :, d.moving].std()  # a fraction of a step, not of the spread of states
+
+
+def test_object_noise_follows_each_bodys_own_motion(data):
+    """``obj:F``: each object's sigmas are F times its own increments' std (the cube's a small fraction
+    of its flywheels'), static objects get none, and the perturbation lands per object."""
+    d = load_split(data / "train.h5")
+    sx, sv = noise_sigmas("obj:0.06", d)
+    sc = SceneGraph.from_static(d.static, has_contact=d.has_contact)
+    obj = sc.obj.numpy()
+    dv = (d.v[:, 1:] - d.v[:, :-1])
+    for o in range(sc.n_obj):
+        if sc.static.numpy()[obj == o].all():
+            assert sx[o] == 0 and sv[o] == 0
+        else:
+            assert sv[o] == pytest.approx(0.06 * dv[:, :, obj == o].std(), rel=1e-5)
+    moving = [o for o in range(sc.n_obj) if not sc.static.numpy()[obj == o].all()]
+    assert min(sv[o] for o in moving) < 0.2 * max(sv[o] for o in moving)  # a cube and its spinning wheels
+    model = MODELS["mdgs"].from_data(d, ModelConfig(noise="obj:0.06"))
+    model.bind(d)
+    b = batch_of(d, d.pairs(0)[:64], "cpu")
+    nb = model.perturb(b, torch.Generator().manual_seed(0))
+    for o in moving:  # the velocity noise of each object: its own sigma, to sampling error (64 graphs)
+        got = float((nb.v - b.v)[:, torch.from_numpy(obj == o)].std())
+        assert 0.3 * sv[o] < got < 3 * sv[o]
 
 
 def test_training_loss_falls_and_outputs(run):

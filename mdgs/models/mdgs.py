@@ -59,7 +59,7 @@ CUBLI_NOISE = 4e-4
 #: output noise on it a thousandfold. The small study's bodies all lie above it (0.097-1.4).
 OBJECT_SCALE_FLOOR = 0.05
 #: What MDGS knows of a scene's motors (``actuation``, :mod:`mdgs.actuation`).
-ACTUATION = ("none", "force", "step")
+ACTUATION = ("none", "force", "step", "prior")
 #: Training noise of Appendix B.2 for the other scenes, as a fraction of the per-step increment std.
 INCREMENT_NOISE = 0.06
 
@@ -93,8 +93,9 @@ class MDGSConfig:
     dense_max_nodes : object graphs (and contact graphs) up to this many nodes propagate densely:
         one [N, N] (or [B, N, N]) block instead of sparse edge lists; the same numbers.
     noise : training noise spec, "auto" (B.2: ``abs:4e-4`` for Cubli scenes, ``inc:0.06``
-        otherwise), ``abs:S``, ``inc:F`` or ``none`` (:func:`noise_sigmas`).
+        otherwise), ``abs:S``, ``inc:F``, ``obj:F`` or ``none`` (:func:`noise_sigmas`).
     noise_sigma_x, noise_sigma_v : m and m/s, the resolved noise (set from the data; -1: unset).
+    noise_sigma_xs, noise_sigma_vs : per object (``obj:F``), m and m/s; empty otherwise.
     zero_init : start g's last layer at zero, so the untrained model is the constant-twist
         reference (rigid integrator) and training moves it away only where that lowers the loss.
     joints : project every simulated step (rollout, one-step validation; not the training
@@ -113,7 +114,8 @@ class MDGSConfig:
         the controls only as per-node input features), "force" (the motors' loads on free bodies
         join the force set F of Eq. 7, so the state network g and L_cst see them), "step" (as
         "force", and the velocity change they give a free body over ``dt`` is added to g's
-        increment, so g learns only what the joints, contacts and coupling add).
+        increment, so g learns only what the joints, contacts and coupling add), "prior" (that
+        velocity change only, F as in the paper).
     Scales left at 1.0, ``control_dim``, ``contact``, ``dt`` and the sigmas are filled from the
     training split by :meth:`MDGS.resolve_config`.
     """
@@ -140,6 +142,8 @@ class MDGSConfig:
     noise: str = "auto"
     noise_sigma_x: float = -1.0
     noise_sigma_v: float = -1.0
+    noise_sigma_xs: tuple[float, ...] = ()
+    noise_sigma_vs: tuple[float, ...] = ()
     zero_init: bool = True
     joints: bool = True
     object_scales: bool = True
@@ -200,8 +204,8 @@ class Prediction:
     contact_edges: torch.Tensor
 
 
-def noise_sigmas(spec: str, d: SplitData) -> tuple[float, float]:
-    """Noise std ``(sigma_x [m], sigma_v [m/s])`` of the spec ``auto``, ``abs:S``, ``inc:F`` or ``none``.
+def noise_sigmas(spec: str, d: SplitData) -> tuple:
+    """Noise std ``(sigma_x [m], sigma_v [m/s])`` of the spec ``auto``, ``abs:S``, ``inc:F``, ``obj:F`` or ``none``.
 
     What is perturbed: the *input* frame only (:meth:`MDGS.perturb`); the targets
     ``x_{t+1}, v_{t+1}`` stay clean, so the model learns to pull a perturbed state back onto the
@@ -211,7 +215,10 @@ def noise_sigmas(spec: str, d: SplitData) -> tuple[float, float]:
     predicts, so the noise never swamps one step. The paper's "0.06 times the standard
     deviation" names no quantity; a fraction of the states' own spread (metres for positions)
     is larger than a whole step and was found to make the one-step target unlearnable. Cubli
-    scenes use the paper's absolute 4e-4 (m and m/s).
+    scenes use the paper's absolute 4e-4 (m and m/s). ``obj:F`` is ``inc:F`` per object: each
+    object's sigmas are F times its own increments' std, returned as two tuples (one entry per
+    object of :class:`~mdgs.graphs.SceneGraph`, 0 for static ones), so that a fast flywheel and
+    a slow cube are each perturbed at the scale of their own motion.
     """
     s = spec.strip().lower()
     if s == "auto":
@@ -223,12 +230,20 @@ def noise_sigmas(spec: str, d: SplitData) -> tuple[float, float]:
         f = float(val)
     except ValueError:
         f = -1.0
-    if kind not in ("abs", "inc") or not np.isfinite(f) or f < 0:
-        raise ModelError(f"--noise {spec!r} is not understood; use auto, none, abs:SIGMA (m, m/s) or inc:FRACTION")
+    if kind not in ("abs", "inc", "obj") or not np.isfinite(f) or f < 0:
+        raise ModelError(f"--noise {spec!r} is not understood; use auto, none, abs:SIGMA (m, m/s), inc:FRACTION "
+                         "or obj:FRACTION")
     if kind == "abs":
         return f, f
     dx, dv = _increments(d)
-    return f * float(dx.std()), f * float(dv.std())
+    if kind == "inc":
+        return f * float(dx.std()), f * float(dv.std())
+    scene = SceneGraph.from_static(d.static, has_contact=d.has_contact)
+    om = np.asarray(scene.obj)[d.moving]
+    sx, sv = [0.0] * scene.n_obj, [0.0] * scene.n_obj
+    for o in np.unique(om):
+        sx[o], sv[o] = f * float(dx[:, :, om == o].std()), f * float(dv[:, :, om == o].std())
+    return tuple(sx), tuple(sv)
 
 
 def _increments(d: SplitData) -> tuple[np.ndarray, np.ndarray]:
@@ -338,7 +353,11 @@ class MDGS(Simulator):
             kw["dv_scale"] = float(max(dv.std(), 1e-12))
         if cfg.force_scale == 1.0:  # typical |M dv / dt| of an element, N
             kw["force_scale"] = f_scale
-        kw["noise_sigma_x"], kw["noise_sigma_v"] = noise_sigmas(cfg.noise, d)
+        sx, sv = noise_sigmas(cfg.noise, d)
+        if isinstance(sx, tuple):  # per object
+            kw["noise_sigma_x"], kw["noise_sigma_v"], kw["noise_sigma_xs"], kw["noise_sigma_vs"] = 0.0, 0.0, sx, sv
+        else:
+            kw["noise_sigma_x"], kw["noise_sigma_v"] = sx, sv
         return replace(cfg, **kw)
 
     def fit(self, d: SplitData) -> None:
@@ -463,14 +482,14 @@ class MDGS(Simulator):
             f_c = torch.zeros_like(f_nc)
         f = f_c + f_nc  # Eq. (7)
         f_act = None
-        if self._drives and ctrl is not None:  # the motors' known loads join F (mdgs.actuation)
+        if self._drives and ctrl is not None and c.actuation in ("force", "step"):  # motors' known loads join F
             f_act = actuation_forces(x, ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj,
                                      scene.mass.to(dev))
             f = f + f_act
         lam = c.lam if c.lam is not None else 1.0 / c.force_scale
         out = self.state(obj_prop, torch.cat([z, lam * f], -1))  # Eqs. (8)-(9)
         sx, sv = self.scales(scene, dev)
-        if f_act is not None and c.actuation == "step":  # + the driven bodies' free velocity change over dt
+        if self._drives and ctrl is not None and c.actuation in ("step", "prior"):  # + driven bodies' free dv over dt
             f_drv = actuation_forces(x, ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj,
                                      scene.mass.to(dev), reactions=False)
             dv_act = f_drv * (c.dt / scene.mass.to(dev, dt).clamp_min(torch.finfo(dt).tiny)).view(1, N, 1)
@@ -526,8 +545,14 @@ class MDGS(Simulator):
         scene = self.scene_on(batch.x.device)
         mv = (~scene.static).view(1, -1, 1).to(torch.float32)
         x, v = batch.x, batch.v
-        nx = cfg.noise_sigma_x * mv * torch.randn(x.shape, generator=gen, device=x.device)
-        nv = cfg.noise_sigma_v * mv * torch.randn(v.shape, generator=gen, device=v.device)
+        if cfg.noise_sigma_xs:  # per object
+            obj = scene.obj.to(x.device)
+            ax, av = (torch.tensor(s, dtype=torch.float32, device=x.device)[obj].view(1, -1, 1)
+                      for s in (cfg.noise_sigma_xs, cfg.noise_sigma_vs))
+        else:
+            ax, av = cfg.noise_sigma_x, cfg.noise_sigma_v
+        nx = ax * mv * torch.randn(x.shape, generator=gen, device=x.device)
+        nv = av * mv * torch.randn(v.shape, generator=gen, device=v.device)
         if cfg.integrator in ("rigid", "twist"):
             xn, vn = perturb(x, v, nx, nv, scene.obj, scene.n_obj, scene.mass)
             x, v = torch.where(mv > 0, xn, x), torch.where(mv > 0, vn, v)
