@@ -45,7 +45,9 @@ def evaluate_cmd(
     traj: int = typer.Option(0, "--traj", help="Test trajectory drawn in the trajectory plot."),
     reference: list[str] = typer.Option(None, "--reference", metavar="NAME[:K]",
                                         help="Also roll out a non-learned reference, e.g. mujoco:20 (MuJoCo at 20x "
-                                             "the data's timestep); repeatable. constant-twist is always included."),
+                                             "the data's timestep) or constant-twist:motors (constant twist plus the "
+                                             "motors' known loads on the bodies they drive); repeatable. constant-twist "
+                                             "is always included."),
     device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),
     list_models: bool = typer.Option(False, "--list-models", help="List the models of the registry and exit."),
 ) -> None:
