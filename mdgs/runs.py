@@ -207,6 +207,7 @@ def load_model(state: dict, dev):
     if state["format"] == 1:
         mc["contact"] = bool(state["has_contact"])
     known = {f.name for f in fields(cls.Config)}
+    mc = {**getattr(cls.Config, "ABSENT", {}), **mc}  # settings newer than the checkpoint: their old meaning
     cfg = cls.Config(**{k: v for k, v in mc.items() if k in known})
     model = cls(cfg).to(dev)
     try:

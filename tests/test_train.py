@@ -122,6 +122,21 @@ def test_object_noise_follows_each_bodys_own_motion(data):
         assert 0.3 * sv[o] < got < 3 * sv[o]
 
 
+def test_a_checkpoint_older_than_a_setting_loads_with_its_old_meaning(run):
+    """A run trained before ``joints``, ``object_scales``, ``zero_init`` and ``actuation`` existed is
+    evaluated as it was trained (the paper's method), not with today's defaults; a run that names
+    them keeps them."""
+    from mdgs.runs import load_model, read_checkpoint
+
+    state = read_checkpoint(run / "checkpoint.pt", "cpu")
+    assert state["config"]["model"]["joints"] is True  # trained with today's defaults
+    assert load_model(state, "cpu").config.joints is True
+    for key in ("joints", "object_scales", "zero_init", "actuation"):
+        state["config"]["model"].pop(key, None)
+    cfg = load_model(state, "cpu").config
+    assert (cfg.joints, cfg.object_scales, cfg.zero_init, cfg.actuation) == (False, False, False, "none")
+
+
 def test_training_loss_falls_and_outputs(run):
     """Median batch L_mse of the last epoch is well below the first epoch's.
 

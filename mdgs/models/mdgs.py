@@ -179,6 +179,11 @@ class MDGSConfig:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    #: What a setting meant in checkpoints written before it existed (:func:`mdgs.runs.load_model`
+    #: uses these for keys a checkpoint lacks, not today's defaults, so an old run is evaluated as
+    #: it was trained).
+    ABSENT = {"joints": False, "object_scales": False, "zero_init": False, "actuation": "none"}
+
 
 #: The name the configuration had before the model registry.
 ModelConfig = MDGSConfig
