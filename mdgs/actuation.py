@@ -1,35 +1,45 @@
-"""Known actuator loads as node forces: what each motor does to the bodies it drives, if they were free.
+"""The motors' known loads: as node forces on free bodies, and as the joint's response with its parent held.
 
 MDGS's inputs carry a scene's actuator controls as per-node signs (``+ctrl_k`` on the body that
 actuator ``k`` drives, ``-ctrl_k`` on its parent; :func:`mdgs.data.split.control_map`): the
 network must learn from a handful of examples that a Cubli's brake command of 12 N m stops a
 flywheel spinning at 960 rad/s within a frame. For a motor, the load is known exactly from the
-MJCF, so this module turns it into forces on the elements, which MDGS adds to its predicted
-force set ``F`` (Eq. 7; ``actuation`` of :class:`mdgs.models.mdgs.MDGSConfig`).
+MJCF (``actuation`` of :class:`mdgs.models.mdgs.MDGSConfig`, and the "constant twist + motors"
+reference of :mod:`mdgs.models.references`).
 
 For actuator ``k`` on the hinge or slide joint of body ``c`` (parent ``p``), with generalised force
 ``u_k = gear_k * clip(gain_k * clip(ctrl_k, ctrlrange), forcerange)`` (MuJoCo's motor: fixed gain,
-no bias, no activation dynamics) and the joint axis ``n = R_c a`` in the world (``a`` the axis in
-the child frame, ``R_c`` the child's rotation fitted to its nodes by :func:`mdgs.structure.kabsch`):
+no bias, no activation dynamics), the joint axis ``n = R_c a`` and anchor ``A = R_c a_c + t_c`` in
+the world (``a``, ``a_c`` the axis and position in the child frame; ``R_c, t_c`` the child's pose
+fitted to its nodes by :func:`mdgs.structure.kabsch`, i.e. MuJoCo's ``xmat, xpos``):
 
-- hinge: torque ``T = u_k n`` on ``c`` and ``-T`` on ``p``;
-- slide: force ``f = u_k n`` on ``c`` and ``-f`` on ``p``.
-
-Each body ``b`` then gets the acceleration field it would have as a free rigid body under its
-summed loads ``(f_b, T_b)``, with its MJCF mass ``M_b`` and inertia tensor ``I_b`` (``body_mass``,
-``body_inertia`` in ``body_iquat``, rotated by ``R_b``), about the mass-weighted centroid ``c_b`` of
-its elements (the centre of the rigid integrator's twists, :func:`mdgs.rigid.twist`)::
+**Free-body loads** (:func:`actuation_forces`). Hinge: torque ``T = u_k n`` on ``c`` and ``-T`` on
+``p``; slide: force ``f = u_k n`` on ``c`` and ``-f`` on ``p``. Each body ``b`` gets the acceleration
+field it would have as a free rigid body under its summed loads, with its MJCF mass ``M_b`` and
+inertia ``I_b`` (``body_inertia`` in ``body_iquat``, rotated by ``R_b``), about the mass-weighted
+centroid ``c_b`` of its elements (the centre of :func:`mdgs.rigid.twist`)::
 
     a_i = f_b / M_b + (I_b^-1 T_b) x (x_i - c_b),        node force  F_i = m_i a_i   (N)
 
-so a couple's node forces sum to zero, as the internal loads of a motor must.
-(Newton-Euler without the gyroscopic term, which does not depend on the control). The rigid
-part of the field ``a_i dt`` (:func:`mdgs.rigid.project`) is the velocity change the actuator
-alone gives a free body over a frame: the constraint forces of the joints and contacts, and
-the coupling through them, are left to the network. Actuators that are not motors (position or
-velocity servos, activation dynamics), that drive a tendon, a site or a ball or free joint, or
-whose body's rotation its elements do not fix, are listed in ``skipped`` and contribute nothing.
-Everything runs in float64; shapes ``[B, N, 3]``.
+so a motor's node forces sum to zero, as internal loads must.
+
+**Joint response, parent held** (:func:`motor_accelerations`). The subtree ``S`` of the driven
+body (it and every descendant with elements, moving with it) turns about (slides along) the
+joint with MuJoCo's joint-space inertia of that one degree of freedom,
+``M_kk = sum_{b in S} (n^T I_b n + M_b |n x (x_b - A)|^2) + armature`` (hinge; ``x_b`` the body's
+mass centre, ``R_b body_ipos + t_b``) or ``sum_{b in S} M_b + armature`` (slide)::
+
+    hinge:  a_i = (u_k / M_kk) n x (x_i - A),     slide:  a_i = (u_k / M_kk) n      (i in S)
+
+summed over the motors. It is MuJoCo's ``qacc = M^-1 qfrc_actuator`` when the parent is fixed and
+the motor's degree of freedom is the only one (a wheel on a fixed axle, an arm on a fixed
+hinge); otherwise an approximation that ignores the parent's recoil (small when the parent is
+much heavier than the subtree, as a Cubli's cube is beside its flywheel) and the coupling with
+other joints. Neither form has the velocity terms (gyroscopic, Coriolis), which do not depend on
+the control. Actuators that are not motors (position or velocity servos, activation dynamics),
+that drive a tendon, a site or a ball or free joint, or whose body's rotation its elements do
+not fix, are listed in ``skipped`` and contribute nothing; bodies without elements are left out
+of the sums. Everything runs in float64; shapes ``[B, N, 3]``.
 """
 
 from __future__ import annotations
@@ -41,7 +51,7 @@ import torch
 
 from mdgs.structure import kabsch, segment_mean
 
-__all__ = ["Drive", "DriveSet", "drives_of", "actuation_forces"]
+__all__ = ["Drive", "DriveSet", "drives_of", "actuation_forces", "motor_accelerations"]
 
 
 @dataclass(frozen=True)
@@ -55,6 +65,8 @@ class Drive:
     gain : generalised force per unit actuator force (``gear[0]``).
     force_gain : actuator force per unit control (``gainprm[0]``).
     ctrl_range, force_range : (lo, hi) clamps, or None when the MJCF does not limit.
+    anchor : [3] joint position in the child's body frame (m); armature : the joint's armature.
+    subtree : the child and its descendant objects (those with elements).
     """
 
     actuator: int
@@ -66,20 +78,26 @@ class Drive:
     force_gain: float
     ctrl_range: tuple[float, float] | None
     force_range: tuple[float, float] | None
+    anchor: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    armature: float = 0.0
+    subtree: tuple[int, ...] = ()
 
 
 @dataclass
 class DriveSet:
     """The motors whose loads :func:`actuation_forces` applies, the bodies' inertial data, and what is skipped (why).
 
-    mass : [S] MJCF mass of each object's body; inv_inertia : [S, 3, 3] inverse inertia tensor
-    about the mass centre, in the body frame (zero for an object whose inertia is singular).
+    mass : [S] MJCF mass of each object's body; inertia, inv_inertia : [S, 3, 3] its inertia tensor
+    about its mass centre in its body frame, and the inverse (zero where singular); com : [S, 3]
+    its mass centre in its body frame (``body_ipos``).
     """
 
     drives: list[Drive] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
     mass: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    inertia: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
     inv_inertia: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
+    com: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __bool__(self) -> bool:
@@ -105,7 +123,12 @@ class DriveSet:
                 "force_gain": torch.tensor([dr.force_gain for dr in d], **f),
                 "ctrl_lo": torch.tensor(lo, **f), "ctrl_hi": torch.tensor(hi, **f),
                 "force_lo": torch.tensor(flo, **f), "force_hi": torch.tensor(fhi, **f),
+                "anchor": torch.as_tensor(np.array([dr.anchor for dr in d]).reshape(-1, 3), **f),
+                "armature": torch.tensor([dr.armature for dr in d], **f),
+                "subtree": torch.tensor(np.array([[o in dr.subtree for o in range(len(self.mass))] for dr in d],
+                                                 bool).reshape(len(d), len(self.mass)), device=dev),
                 "mass": torch.as_tensor(self.mass, **f),
+                "inertia": torch.as_tensor(self.inertia, **f), "com": torch.as_tensor(self.com, **f),
                 "inv_inertia": torch.as_tensor(self.inv_inertia, **f),
             }
         return self._cache[key]
@@ -117,6 +140,15 @@ def _posable(ref: np.ndarray) -> bool:
         return False
     s = np.linalg.svd(ref - ref.mean(0), compute_uv=False)
     return bool(s[0] > 0 and s[1] > 1e-6 * s[0])
+
+
+def _descends(m, c: int, b: int) -> bool:
+    """Whether MuJoCo body ``c`` is ``b`` or one of its descendants."""
+    while c > 0:
+        if c == b:
+            return True
+        c = int(m.body_parentid[c])
+    return c == b
 
 
 def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> DriveSet:
@@ -133,18 +165,22 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
     bodies = np.unique(node_body)
     obj_of = {int(b): k for k, b in enumerate(bodies)}
     S = len(bodies)
-    mass, inv_inertia = np.zeros(S), np.zeros((S, 3, 3))
+    mass, inertia, inv_inertia, com = np.zeros(S), np.zeros((S, 3, 3)), np.zeros((S, 3, 3)), np.zeros((S, 3))
     posable = np.zeros(S, bool)
     for k, b in enumerate(int(x) for x in bodies):
         q = np.zeros(9)
         mujoco.mju_quat2Mat(q, m.body_iquat[b])
         q = q.reshape(3, 3)
-        inertia = q @ np.diag(m.body_inertia[b]) @ q.T
-        mass[k] = float(m.body_mass[b])
-        if b != 0 and np.linalg.cond(inertia) < 1e12:
-            inv_inertia[k] = np.linalg.inv(inertia)
+        inertia[k] = q @ np.diag(m.body_inertia[b]) @ q.T
+        mass[k], com[k] = float(m.body_mass[b]), m.body_ipos[b]
+        if b != 0 and np.linalg.cond(inertia[k]) < 1e12:
+            inv_inertia[k] = np.linalg.inv(inertia[k])
         posable[k] = _posable(node_centroid[node_body == b])
-    out = DriveSet(mass=mass, inv_inertia=inv_inertia)
+    out = DriveSet(mass=mass, inertia=inertia, inv_inertia=inv_inertia, com=com)
+
+    def subtree(b: int) -> tuple[int, ...]:
+        return tuple(obj_of[int(c)] for c in range(m.nbody) if int(c) in obj_of and _descends(m, int(c), b))
+
     name = lambda kind, i: mujoco.mj_id2name(m, kind, i) or f"#{i}"  # noqa: E731
     for k in range(m.nu):
         a_name = f"actuator {name(mujoco.mjtObj.mjOBJ_ACTUATOR, k)}"
@@ -179,17 +215,19 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
         force_range = tuple(float(c) for c in m.actuator_forcerange[k]) if bool(m.actuator_forcelimited[k]) else None
         out.drives.append(Drive(k, obj_of[b], obj_of[p] if p != 0 else -1, kind, axis / np.linalg.norm(axis),
                                 float(m.actuator_gear[k, 0]), float(m.actuator_gainprm[k, 0]),
-                                ctrl_range, force_range))
+                                ctrl_range, force_range, np.array(m.jnt_pos[j], float),
+                                float(m.dof_armature[m.jnt_dofadr[j]]), subtree(b)))
     return out
 
 
 def actuation_forces(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor, seg: torch.Tensor,
-                     n_obj: int, mass: torch.Tensor, reactions: bool = True) -> torch.Tensor:
+                     n_obj: int, mass: torch.Tensor) -> torch.Tensor:
     """Node forces ``F_i = m_i a_i`` [B, N, 3] (N) of the motors' loads on free bodies (module docstring).
+
+    This and :func:`motor_accelerations` share the motors' generalised forces (:func:`_motor_forces`).
 
     x : [B, N, 3] node positions (m); ctrl : [B, nu] controls (actuator units); ref : [N, 3] element
     centroids in their body frames; seg : [N] object of each node; mass : [N] element masses (kg).
-    reactions : include the loads on the parents (False: the driven bodies' loads only).
     Returned in ``x``'s dtype; zero when there are no drives.
     """
     if not drives:
@@ -199,16 +237,14 @@ def actuation_forces(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref:
     xd, seg = x.to(f64), seg.to(dev)
     R, _ = kabsch(ref.to(dev, f64), xd, seg, n_obj)  # [B, S, 3, 3]: body rotations
     B = x.shape[0]
-    c = ctrl.to(dev, f64)[:, T["actuator"]]
-    c = torch.minimum(torch.maximum(c, T["ctrl_lo"]), T["ctrl_hi"])
-    u = T["gain"] * torch.minimum(torch.maximum(T["force_gain"] * c, T["force_lo"]), T["force_hi"])  # [B, D]
+    u = _motor_forces(ctrl.to(dev, f64), T)  # [B, D]
     n = (R[:, T["child"]] @ T["axis"].unsqueeze(-1)).squeeze(-1)  # world axes [B, D, 3]
     load = u.unsqueeze(-1) * n
     tq = T["torque"].view(1, -1, 1)
     # summed loads per object; the world (parent -1) takes its reactions in slot n_obj, dropped
     force = xd.new_zeros(B, n_obj + 1, 3)
     torque = xd.new_zeros(B, n_obj + 1, 3)
-    parent = torch.where(T["parent"] < 0, n_obj, T["parent"]) if reactions else torch.full_like(T["parent"], n_obj)
+    parent = torch.where(T["parent"] < 0, n_obj, T["parent"])
     torque.index_add_(1, T["child"], torch.where(tq, load, 0.0)).index_add_(1, parent, torch.where(tq, -load, 0.0))
     force.index_add_(1, T["child"], torch.where(tq, 0.0, load)).index_add_(1, parent, torch.where(tq, 0.0, -load))
     force, torque = force[:, :n_obj], torque[:, :n_obj]
@@ -219,3 +255,44 @@ def actuation_forces(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref:
     r = xd - cen[:, seg]
     acc = lin[:, seg] + torch.linalg.cross(alpha[:, seg], r, dim=-1)
     return (md.view(1, -1, 1) * acc).to(x.dtype)
+
+
+def _motor_forces(ctrl: torch.Tensor, T: dict) -> torch.Tensor:
+    """Generalised forces ``u_k = gear_k clip(gain_k clip(ctrl_k, ctrlrange), forcerange)`` [B, D]."""
+    c = torch.minimum(torch.maximum(ctrl[:, T["actuator"]], T["ctrl_lo"]), T["ctrl_hi"])
+    return T["gain"] * torch.minimum(torch.maximum(T["force_gain"] * c, T["force_lo"]), T["force_hi"])
+
+
+def motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor, seg: torch.Tensor,
+                        n_obj: int) -> torch.Tensor:
+    """Node accelerations [B, N, 3] (m/s^2) of the motors' joints with their parents held (module docstring).
+
+    x : [B, N, 3] node positions (m); ctrl : [B, nu] controls; ref : [N, 3] element centroids in their
+    body frames; seg : [N] object of each node. Returned in ``x``'s dtype; zero without drives.
+    """
+    if not drives:
+        return torch.zeros_like(x)
+    dev, f64 = x.device, torch.float64
+    T = drives.tensors(dev)
+    xd, seg = x.to(f64), seg.to(dev)
+    R, t = kabsch(ref.to(dev, f64), xd, seg, n_obj)  # [B, S, 3, 3], [B, S, 3]: MuJoCo's xmat, xpos
+    u = _motor_forces(ctrl.to(dev, f64), T)  # [B, D]
+    Rc, tc = R[:, T["child"]], t[:, T["child"]]  # [B, D, 3, 3], [B, D, 3]
+    n = (Rc @ T["axis"].unsqueeze(-1)).squeeze(-1)  # world axes [B, D, 3]
+    A = (Rc @ T["anchor"].unsqueeze(-1)).squeeze(-1) + tc  # world anchors [B, D, 3]
+    sub = T["subtree"].to(f64)  # [D, S]
+    hinge = T["torque"].view(1, -1)
+    # hinge: n^T I_b n + M_b |n x (x_b - A)|^2 for every (motor, object); slide: M_b
+    xb = (R @ T["com"].unsqueeze(-1)).squeeze(-1) + t  # mass centres [B, S, 3]
+    Iw = R @ T["inertia"] @ R.transpose(-1, -2)  # [B, S, 3, 3]
+    rot = torch.einsum("bdi,bsij,bdj->bds", n, Iw, n)
+    arm = torch.linalg.cross(n.unsqueeze(2).expand(-1, -1, n_obj, -1), xb.unsqueeze(1) - A.unsqueeze(2), dim=-1)
+    per = torch.where(hinge.unsqueeze(-1), rot + T["mass"] * (arm ** 2).sum(-1), T["mass"].expand_as(rot))
+    m_kk = (per * sub).sum(-1) + T["armature"]  # [B, D]
+    qacc = u / m_kk.clamp_min(torch.finfo(f64).tiny)
+    on = sub[:, seg]  # [D, N]: node i moves with motor d's subtree
+    r = xd.unsqueeze(1) - A.unsqueeze(2)  # [B, D, N, 3]
+    turn = torch.linalg.cross(n.unsqueeze(2).expand_as(r), r, dim=-1)
+    field_ = torch.where(hinge.view(1, -1, 1, 1), turn, n.unsqueeze(2).expand_as(r))
+    acc = (qacc.view(*qacc.shape, 1, 1) * on.view(1, *on.shape, 1) * field_).sum(1)
+    return acc.to(x.dtype)

@@ -1,7 +1,9 @@
-"""Motors' known loads (mdgs.actuation): on bodies whose joint lets them respond freely along the
-joint, the loads give exactly MuJoCo's joint acceleration; a motor's couple sums to zero; actuators
-the module cannot model are named and skipped; MDGS with ``actuation="step"`` starts from the
-driven bodies' free response.
+"""Motors' known loads (mdgs.actuation): free-body loads give MuJoCo's joint acceleration where the
+joint's axis is a free body's principal axis through its mass centre, and a motor's loads sum to
+zero; the joint response with the parent held is MuJoCo's ``M^-1 qfrc_actuator`` for one-degree-
+of-freedom joints on the world (off-centre axis, a welded child riding along); actuators the module
+cannot model are named and skipped; MDGS with ``actuation="prior"`` and the "constant twist +
+motors" reference start from that response.
 
 Tolerances: everything is float64 and the inertias are MuJoCo's own, so accelerations agree to
 1e-9 relative; the elements' positions are built from MuJoCo's body poses in the test.
@@ -16,7 +18,7 @@ import numpy as np
 import pytest
 import torch
 
-from mdgs.actuation import actuation_forces, drives_of
+from mdgs.actuation import actuation_forces, drives_of, motor_accelerations
 from mdgs.data.generate import GenerateConfig, generate
 from mdgs.data.split import load_split
 from mdgs.graphs import SceneGraph
@@ -41,11 +43,19 @@ MOTORS = """<mujoco model="motors">
       <joint name="pivot" type="hinge" axis="0 1 0"/>
       <geom type="box" size="0.05 0.05 0.2" density="500"/>
     </body>
+    <body name="crank" pos="0 2 1" quat="0.8 0.2 0.5 0.1">
+      <joint name="elbow" type="hinge" axis="1 0 0" pos="0 0 0.15" armature="0.01"/>
+      <geom type="box" size="0.09 0.07 0.12" density="700"/>
+      <body name="load" pos="0.05 0 -0.2" quat="0.9 0.1 0 0.4">
+        <geom type="box" size="0.06 0.05 0.04" density="900"/>
+      </body>
+    </body>
   </worldbody>
   <actuator>
     <motor name="m_spin" joint="spin" gear="2" ctrlrange="-1 1"/>
     <motor name="m_rail" joint="rail" gear="3" forcerange="-0.5 0.5"/>
     <position name="servo" joint="pivot" kp="10"/>
+    <motor name="m_elbow" joint="elbow" gear="1.5"/>
   </actuator>
 </mujoco>
 """
@@ -66,12 +76,17 @@ def splits(tmp_path_factory):
     return out
 
 
-def _free_response(d, x, ctrl, reactions=True):
-    """(linear, angular) velocity change per unit time [S, 3] of each object under the motors' loads."""
+def _free_response(d, x, ctrl, held=False):
+    """(linear, angular) velocity change per unit time [S, 3] of each object under the motors' loads:
+    free bodies, or (``held``) each joint with its parent held."""
     sc = SceneGraph.from_static(d.static, has_contact=d.has_contact)
     ds = drives_of(d.mj_model(), d.static["node_body"], d.static["node_centroid"])
-    f = actuation_forces(x, ctrl, ds, sc.ref_shape, sc.obj, sc.n_obj, sc.mass, reactions=reactions)
     mass = sc.mass.double()
+    if held:
+        acc = motor_accelerations(x, ctrl, ds, sc.ref_shape, sc.obj, sc.n_obj)
+        f = acc * mass.view(1, -1, 1)
+    else:
+        f = actuation_forces(x, ctrl, ds, sc.ref_shape, sc.obj, sc.n_obj, sc.mass)
     tw = twist(x, torch.zeros_like(x), sc.obj, sc.n_obj, mass)
     return (*project(f / mass.view(1, -1, 1), x, tw, sc.obj, sc.n_obj, mass), f, sc, ds)
 
@@ -79,24 +94,30 @@ def _free_response(d, x, ctrl, reactions=True):
 def test_servos_are_skipped_and_named(splits):
     d = splits["motors"][1]
     ds = drives_of(d.mj_model(), d.static["node_body"], d.static["node_centroid"])
-    assert [dr.kind for dr in ds.drives] == ["hinge", "slide"]
+    assert [dr.kind for dr in ds.drives] == ["hinge", "slide", "hinge"]
     assert len(ds.skipped) == 1 and "servo" in ds.skipped[0] and "not a motor" in ds.skipped[0]
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_motor_loads_give_mujocos_joint_acceleration(splits, seed):
-    d = splits["motors"][1]
+def _mujoco_state(d, seed):
     m = d.mj_model()
     m.opt.gravity[:] = 0
     data = mujoco.MjData(m)
     rng = np.random.default_rng(seed)
     data.qpos[:] = rng.normal(size=m.nq)
     data.ctrl[:] = rng.uniform(-2, 2, size=m.nu)  # the spin motor's |ctrl| > 1 is clamped to ctrlrange
-    mujoco.mj_forward(m, data)
+    mujoco.mj_forward(m, data)  # qvel = 0: qacc = M^-1 qfrc_actuator
     body, cen = np.asarray(d.static["node_body"]), np.asarray(d.static["node_centroid"])
     x = np.stack([data.xpos[b] + data.xmat[b].reshape(3, 3) @ c for b, c in zip(body, cen, strict=True)])
-    ctrl = torch.tensor(data.ctrl[None], dtype=torch.float64)
-    dvc, dw, _, sc, _ = _free_response(d, torch.from_numpy(x)[None], ctrl)
+    return m, data, torch.from_numpy(x)[None], torch.tensor(data.ctrl[None], dtype=torch.float64)
+
+
+@pytest.mark.parametrize("held", [False, True])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_motor_loads_give_mujocos_joint_acceleration(splits, seed, held):
+    d = splits["motors"][1]
+    m, data, x, ctrl = _mujoco_state(d, seed)
+    body = np.asarray(d.static["node_body"])
+    dvc, dw, _, sc, _ = _free_response(d, x, ctrl, held)
     obj = {int(b): k for k, b in enumerate(np.unique(body))}
     disc, cart = obj[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "disc")], obj[
         mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "cart")]
@@ -112,7 +133,27 @@ def test_motor_loads_give_mujocos_joint_acceleration(splits, seed):
     assert float(dw[0, arm].abs().max()) == 0.0  # the servo is skipped, not guessed
 
 
-def test_a_motors_couple_sums_to_zero_and_reactions_can_be_left_out(splits):
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_held_joint_response_turns_an_offset_crank_and_its_welded_load_about_the_hinge(splits, seed):
+    """MuJoCo's qacc of the elbow (axis off both bodies' mass centres, armature, a welded load):
+    the crank and its load turn about the hinge line at qacc, their mass centres on circles about it."""
+    d = splits["motors"][1]
+    m, data, x, ctrl = _mujoco_state(d, seed)
+    dvc, dw, _, sc, _ = _free_response(d, x, ctrl, held=True)
+    j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "elbow")
+    qacc, n, anchor = data.qacc[m.jnt_dofadr[j]], data.xaxis[j], data.xanchor[j]
+    assert abs(qacc) > 1
+    obj = {int(b): k for k, b in enumerate(np.unique(d.static["node_body"]))}
+    mass = sc.mass.double()
+    for name in ("crank", "load"):
+        o = obj[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)]
+        c = ((mass[sc.obj == o, None] * x[0, sc.obj == o]).sum(0) / mass[sc.obj == o].sum()).numpy()
+        np.testing.assert_allclose(dw[0, o].numpy(), qacc * n, rtol=1e-9, atol=1e-9 * abs(qacc))
+        np.testing.assert_allclose(dvc[0, o].numpy(), qacc * np.cross(n, c - anchor), rtol=1e-9,
+                                   atol=1e-9 * abs(qacc))
+
+
+def test_a_motors_loads_sum_to_zero_and_a_wheel_turns_alike_free_or_held(splits):
     d = splits["cubli-triple"][1]
     x = torch.from_numpy(d.x[0, 3:5]).double()
     ctrl = torch.from_numpy(np.array([[0.5, -1.0, 2.0], [12.0, 0.0, -3.0]]))
@@ -122,19 +163,20 @@ def test_a_motors_couple_sums_to_zero_and_reactions_can_be_left_out(splits):
     np.testing.assert_allclose(f.sum(1).numpy(), 0, atol=1e-12 * scale)  # internal loads
     cube = ds.drives[0].parent
     assert all(dr.parent == cube for dr in ds.drives) and float(dw[:, cube].norm(dim=-1).min()) > 0
-    _, dw_drv, f_drv, _, _ = _free_response(d, x, ctrl, reactions=False)
-    assert float(f_drv[:, sc.obj == cube].abs().max()) == 0.0
-    wheels = [dr.child for dr in ds.drives]
-    np.testing.assert_allclose(dw_drv[:, wheels].numpy(), dw[:, wheels].numpy(), rtol=1e-12)
+    _, dw_held, f_held, _, _ = _free_response(d, x, ctrl, held=True)
+    assert float(f_held[:, sc.obj == cube].abs().max()) == 0.0  # the parent is held
+    wheels = [dr.child for dr in ds.drives]  # each wheel's axis is principal, through its centre: the same
+    np.testing.assert_allclose(dw_held[:, wheels].numpy(), dw[:, wheels].numpy(), rtol=1e-9,
+                               atol=1e-9 * float(dw.abs().max()))  # float32 positions: round-off of the fits
 
 
-def test_mdgs_step_actuation_starts_from_the_driven_bodies_free_response(splits):
+def test_mdgs_motor_prior_starts_from_the_wheels_joint_response(splits):
     tr, te = splits["cubli-triple"]
     cls = MODELS["mdgs"]
     b = batch_of(te, te.pairs(0)[:6], "cpu")
     b.ctrl[:] = torch.tensor([3.0, -2.0, 1.0])
     omega = {}
-    for act in ("none", "step"):
+    for act in ("none", "prior"):
         model = cls.from_data(tr, cls.Config(actuation=act))  # zero_init: g's output starts at zero
         model.bind(te)
         model.eval()
@@ -151,7 +193,7 @@ def test_mdgs_step_actuation_starts_from_the_driven_bodies_free_response(splits)
         q = q.reshape(3, 3)
         i_axis = float(dr.axis @ q @ np.diag(m.body_inertia[bid]) @ q.T @ dr.axis)  # the wheel's axis is principal
         expect = dr.gain * float(b.ctrl[0, dr.actuator]) / i_axis * model.config.dt
-        dw = (omega["step"] - omega["none"])[:, dr.child].numpy()
+        dw = (omega["prior"] - omega["none"])[:, dr.child].numpy()
         np.testing.assert_allclose(np.linalg.norm(dw, axis=-1), abs(expect), rtol=1e-3)
 
 

@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 import torch
 
-from mdgs.actuation import DriveSet, actuation_forces, drives_of
+from mdgs.actuation import DriveSet, actuation_forces, drives_of, motor_accelerations
 from mdgs.data.split import SplitData
 from mdgs.graphs import (
     Propagator,
@@ -112,10 +112,10 @@ class MDGSConfig:
     gives the paper's method.
     actuation : what MDGS knows of the scene's motors (:mod:`mdgs.actuation`): "none" (the paper:
         the controls only as per-node input features), "force" (the motors' loads on free bodies
-        join the force set F of Eq. 7, so the state network g and L_cst see them), "step" (as
-        "force", and the velocity change they give a free body over ``dt`` is added to g's
-        increment, so g learns only what the joints, contacts and coupling add), "prior" (that
-        velocity change only, F as in the paper).
+        join the force set F of Eq. 7, so the state network g and L_cst see them), "prior" (the
+        velocity change over ``dt`` of each motor's joint with its parent held,
+        :func:`mdgs.actuation.motor_accelerations`, is added to g's increment, so g learns only
+        what the recoil, contacts and coupling add; F as in the paper), "step" (both).
     Scales left at 1.0, ``control_dim``, ``contact``, ``dt`` and the sigmas are filled from the
     training split by :meth:`MDGS.resolve_config`.
     """
@@ -486,18 +486,15 @@ class MDGS(Simulator):
             ce = torch.zeros(2, 0, dtype=torch.long, device=dev)
             f_c = torch.zeros_like(f_nc)
         f = f_c + f_nc  # Eq. (7)
-        f_act = None
         if self._drives and ctrl is not None and c.actuation in ("force", "step"):  # motors' known loads join F
-            f_act = actuation_forces(x, ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj,
+            f = f + actuation_forces(x, ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj,
                                      scene.mass.to(dev))
-            f = f + f_act
         lam = c.lam if c.lam is not None else 1.0 / c.force_scale
         out = self.state(obj_prop, torch.cat([z, lam * f], -1))  # Eqs. (8)-(9)
         sx, sv = self.scales(scene, dev)
-        if self._drives and ctrl is not None and c.actuation in ("step", "prior"):  # + driven bodies' free dv over dt
-            f_drv = actuation_forces(x, ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj,
-                                     scene.mass.to(dev), reactions=False)
-            dv_act = f_drv * (c.dt / scene.mass.to(dev, dt).clamp_min(torch.finfo(dt).tiny)).view(1, N, 1)
+        if self._drives and ctrl is not None and c.actuation in ("step", "prior"):  # + the motors' joint response
+            dv_act = c.dt * motor_accelerations(x, ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev),
+                                                scene.n_obj)
             out = out + torch.cat([torch.zeros_like(dv_act), dv_act / sv], -1)
         x_next, v_next = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx,
                                                    dv_scale=sv, dvc_scale=c.dvc_scale,

@@ -6,8 +6,8 @@ Both meet the :class:`~mdgs.models.base.Simulator` contract and have nothing to 
   angular velocity (no forces, no contact) and moves rigidly over the frame. A learned
   simulator that does not beat it has learned no dynamics (gravity, contact, actuation).
   With ``motors=True`` ("constant twist + motors") the bodies that motors drive also take the
-  velocity change the motors' known loads give them as free bodies (:mod:`mdgs.actuation`,
-  reactions on the parents left out): the physics of the controls a learned model is handed.
+  velocity change of each motor's joint with its parent held (:func:`mdgs.actuation.motor_accelerations`):
+  the physics of the controls a learned model is handed.
 - :class:`MuJoCoReference` (``mujoco``): the physics engine that made the data, replaying
   each test trajectory from its recorded initial state under the recorded controls, with the
   timestep ``dt_factor`` times the dataset's (``substeps / dt_factor`` steps per frame). At
@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 import torch
 
-from mdgs.actuation import DriveSet, actuation_forces, drives_of
+from mdgs.actuation import DriveSet, drives_of, motor_accelerations
 from mdgs.data.split import SplitData
 from mdgs.graphs import SceneGraph
 from mdgs.models.base import ModelError, Simulator, State
@@ -36,9 +36,8 @@ __all__ = ["ConstantTwist", "ConstantTwistConfig", "MuJoCoReference", "MuJoCoCon
 class ConstantTwistConfig:
     """Settings of the constant-twist reference.
 
-    motors : add the motors' known loads on the bodies they drive, as free bodies
-        (:func:`mdgs.actuation.actuation_forces` with ``reactions=False``); the label becomes
-        "constant twist + motors".
+    motors : add each motor's joint response with its parent held
+        (:func:`mdgs.actuation.motor_accelerations`); the label becomes "constant twist + motors".
     """
 
     motors: bool = False
@@ -70,10 +69,9 @@ class ConstantTwist(Simulator):
         seg, mass = sc.obj.to(x.device), sc.mass.to(x.device)
         tw = twist(x, v, seg, sc.n_obj, mass)
         vc, w = tw.vc, tw.omega
-        if self._drives:  # + the driven bodies' free response to the motors over the frame
-            f = actuation_forces(x, ctrl, self._drives, sc.ref_shape.to(x.device), seg, sc.n_obj, mass, reactions=False)
-            m = mass.to(f.dtype).clamp_min(torch.finfo(f.dtype).tiny).view(1, -1, 1)
-            dvc, dw = project(f / m * self._dt, x, tw, seg, sc.n_obj, mass)
+        if self._drives:  # + the motors' joint response (parents held) over the frame
+            acc = motor_accelerations(x, ctrl, self._drives, sc.ref_shape.to(x.device), seg, sc.n_obj)
+            dvc, dw = project(acc * self._dt, x, tw, seg, sc.n_obj, mass)
             vc, w = vc + dvc, w + dw
         xn, vn = advance(x, tw, vc, w, self._dt, seg)
         m = (~sc.static).to(x.device).view(1, -1, 1)
