@@ -405,8 +405,15 @@ def _cli_block() -> str:
     return "\n".join(out)
 
 
+_DIRS = re.compile(r"(?<![\w.])/(?:[^\s/;,]+/)+")  # the folders of an absolute path in a cell's reason
+
+
 def _results_status(root: str) -> str:
-    """Which cells the committed study (``docs/results/small/results*.jsonl``) holds, per model."""
+    """Which cells the committed study (``docs/results/small/results*.jsonl``) holds, per model.
+
+    Counted as the tables count them (:func:`mdgs.study.report`): a cell whose status is ``ok``
+    or ``failed`` is finished and in the tables; the others (``not applicable``, an internal
+    ``error``) are listed under the table with their reason."""
     import glob
 
     lines = []
@@ -415,17 +422,27 @@ def _results_status(root: str) -> str:
             lines += [json.loads(x) for x in fh if x.strip()]
     if not lines:
         return "<p><strong>No results are committed yet</strong>: the tables and charts below appear once the study has finished its first cells.</p>"
+    finished = [d for d in lines if d.get("status", "ok") in ("ok", "failed")]
+    others = [d for d in lines if d.get("status", "ok") not in ("ok", "failed")]
+    kinds = {"learned": "learned", "reference": "reference", "sensitivity": "reference (sensitivity floor)"}
     models: dict = {}
-    for d in lines:
-        m = models.setdefault((d.get("kind") != "reference", d["model"]), {"scenes": set(), "seeds": set(), "n": 0})
+    for d in finished:
+        kind = d.get("kind", "learned")
+        m = models.setdefault((kind != "learned", kind, d["model"]), {"scenes": set(), "seeds": set(), "n": 0})
         m["scenes"].add(d["scene"])
         m["seeds"].add(d["seed"])
         m["n"] += 1
-    rows = [[f"<code>{html.escape(name)}</code>", "learned" if learned else "reference", str(v["n"]),
+    rows = [[f"<code>{html.escape(name)}</code>", html.escape(kinds.get(kind, kind)), str(v["n"]),
              ", ".join(sorted(v["scenes"])), ", ".join(str(x) for x in sorted(v["seeds"]))]
-            for (learned, name), v in sorted(models.items())]
-    return (f"<p>The committed study holds <strong>{len(lines)} finished cells</strong>, read when this site was built:</p>\n"
-            + _table(["model", "kind", "cells", "scenes", "seeds"], rows, "stack"))
+            for (_, kind, name), v in sorted(models.items())]
+    out = (f"<p>The committed study holds <strong>{len(finished)} finished cells</strong>, read when this site was built:</p>\n"
+           + _table(["model", "kind", "cells", "scenes", "seeds"], rows, "stack"))
+    if others:
+        items = "".join(f"<li><code>{html.escape(str(d.get('label', d['model'])))}</code> on {html.escape(d['scene'])}, "
+                        f"seed {d['seed']}: {html.escape(str(d.get('status')))} ({html.escape(_DIRS.sub('', str(d.get('reason', '')))[:200])})</li>"
+                        for d in others)
+        out += f"\n<p>Not in the tables ({len(others)}):</p>\n<ul>{items}</ul>"
+    return out
 
 
 # --------------------------------------------------------------------------- MJCF
@@ -520,21 +537,25 @@ _ROLE = re.compile(r":(?:py:)?(?:func|class|mod|meth|data|attr|exc|obj|const|mat
 
 _MATH_ROLE = re.compile(r":math:<code>(.*?)</code>", re.S)
 _SUP = str.maketrans("0123456789-", "⁰¹²³⁴⁵⁶⁷⁸⁹⁻")
-_CARET = re.compile(r"\b([A-Za-z])\^(-?\d)\b")
+_CARET = re.compile(r"\b([A-Za-z]|10)\^(-?\d)\b")
+_PLUSMINUS = re.compile(r"(?<=\S) \+- (?=\S)")  # the study tables' "mean +- std"
 _KEEP = re.compile(r'<pre\b.*?</pre>|<code\b.*?</code>|<script\b.*?</script>|<(span|div) class="arithmatex">.*?</\1>', re.S)
 
 
 def on_page_content(html_text: str, page, config, files, **kwargs) -> str:
     """Render ``:math:`` roles of docstrings as math, drop the other sphinx roles (``:func:``)
     that docstrings carry before their code span, and
-    write the carets of units in docstrings and help texts (``m^2``) as superscripts, outside
-    code and math."""
+    write the carets of units in docstrings, help texts and the study tables (``m^2``,
+    ``10^-3``) as superscripts and their ``+-`` as ``±``, outside code and math."""
     html_text = _MATH_ROLE.sub(lambda m: f'<span class="arithmatex">\\({m.group(1)}\\)</span>', html_text)
     html_text = _ROLE.sub("", html_text)
+    def text(t: str) -> str:
+        return _PLUSMINUS.sub(" ± ", _CARET.sub(lambda c: c.group(1) + c.group(2).translate(_SUP), t))
+
     out, pos = [], 0
     for m in _KEEP.finditer(html_text):
-        out.append(_CARET.sub(lambda c: c.group(1) + c.group(2).translate(_SUP), html_text[pos:m.start()]))
+        out.append(text(html_text[pos:m.start()]))
         out.append(m.group(0))
         pos = m.end()
-    out.append(_CARET.sub(lambda c: c.group(1) + c.group(2).translate(_SUP), html_text[pos:]))
+    out.append(text(html_text[pos:]))
     return "".join(out)

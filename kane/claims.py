@@ -1153,15 +1153,21 @@ def run_checks(claim_ids: list[str] | None = None, cases: list[str] | None = Non
 
     Parameters
     ----------
-    claim_ids : ids to run (a base id such as ``eq12`` also selects ``eq12.corrected``); None: all.
-    cases : case names (substring match); None: all.
-    quick : only the fast subset (and fewer examples/frames).
-    seed : seed of the adversarial searches.
-    on_progress : called as ``on_progress(done, total, label)`` after each check.
+    claim_ids
+        ids to run (a base id such as ``eq12`` also selects ``eq12.corrected``); None: all.
+    cases
+        case names (substring match); None: all.
+    quick
+        only the fast subset (and fewer examples/frames).
+    seed
+        seed of the adversarial searches.
+    on_progress
+        called as ``on_progress(done, total, label)`` after each check.
 
     Raises
     ------
-    ValueError : an unknown claim id or case.
+    ValueError
+        an unknown claim id or case.
     """
     specs = list(CHECKS)
     if claim_ids:

@@ -31,7 +31,8 @@ def replay(cex: dict) -> ReplayReport:
 
     Raises
     ------
-    ValueError : the dict is not a counterexample this function understands.
+    ValueError
+        the dict is not a counterexample this function understands.
     """
     if not isinstance(cex, dict) or "claim_id" not in cex or "kind" not in cex:
         raise ValueError("a counterexample is a JSON object with 'claim_id' and 'kind' (as written by mdgs validate --json)")

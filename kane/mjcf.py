@@ -343,6 +343,7 @@ def from_mjcf(path: str | Path, name: str | None = None) -> MjcfModel:
     Returns
     -------
     MjcfModel
+        The system, with its explicit and ``KanesMethod`` derivations built on first use.
 
     Raises
     ------
@@ -556,9 +557,10 @@ def crosscheck_mjcf(mm: MjcfModel, n_states: int = 20, seed: int = 0, model: Sym
 
     Returns
     -------
-    dict: the residuals above, ``n_states``, ``pinocchio_dofs``, ``pinocchio_source``
-    (which file Pinocchio read, see :func:`_pinocchio_tree`), ``pinocchio_note`` (dofs left
-    out, or why the Pinocchio route did not run), ``seconds``.
+    dict
+        The residuals above, ``n_states``, ``pinocchio_dofs``, ``pinocchio_source`` (which file
+        Pinocchio read), ``pinocchio_note`` (dofs left out, or why the Pinocchio route did not
+        run), ``seconds``.
     """
     import mujoco
 

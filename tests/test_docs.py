@@ -170,3 +170,51 @@ def test_every_page_is_in_the_nav(site):
     in_nav = set(walk(cfg["nav"]))
     pages = {str(p.relative_to(DOCS)) for p in DOCS.rglob("*.md") if "results" not in p.parts}
     assert pages <= in_nav, f"pages missing from the nav: {sorted(pages - in_nav)}"
+
+
+def test_one_h1_per_page(site):
+    """A page has one title: an included file (a study's tables.md) brings no H1 of its own."""
+    for name, html in _pages(site[0]).items():
+        body = html.split('<article', 1)[-1].split("</article>", 1)[0]
+        h1 = re.findall(r"<h1\b", body)
+        assert len(h1) == 1, f"{name} has {len(h1)} H1 headings"
+
+
+def test_no_list_swallowed_by_a_paragraph(site):
+    """A list written without its blank line or with a 3-space indent renders as text: '2. ...'
+    or '- ...' at the start of a line inside a paragraph."""
+    bad = {}
+    for name, html in _pages(site[0]).items():
+        for p in re.findall(r"<p>(.*?)</p>", html, re.S):
+            lines = [ln for ln in p.split("\n")[1:] if re.match(r"\s*([-*+]|\d+\.)\s", ln)]
+            if lines:
+                bad.setdefault(name, []).extend(ln.strip()[:60] for ln in lines)
+    assert not bad, f"list items rendered as paragraph text: {bad}"
+
+
+def test_api_tables_have_descriptions(site):
+    """Every parameter, attribute, return and raise row of the API page has its description in
+    the description column (a numpy docstring written ``name : text`` puts the text in the type
+    column and leaves the description empty)."""
+    api = _pages(site[0])["api/index.html"]
+    rows = re.findall(r'<tr class="doc-section-item">(.*?)</tr>', api, re.S)
+    assert rows
+    empty = []
+    for row in rows:
+        desc = re.search(r'<div class="doc-md-description">(.*?)</div>', row, re.S)
+        if not desc or not re.sub(r"<[^>]+>", "", desc.group(1)).strip():
+            empty.append(re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", row)).strip()[:80])
+    assert not empty, f"API rows without a description: {empty}"
+
+
+_DEV_LOG = re.compile(r"\bissue[- ]\d+|\bthe issue's\b|\bthis session\b|\bon this machine\b|\bclosing note\b", re.I)
+
+
+def test_no_development_log_in_pages(site):
+    """Pages speak to a reader: no pointers to issues, branches or sessions of the development."""
+    bad = {}
+    for name, html in _pages(site[0]).items():
+        hits = sorted({m.group(0) for m in _DEV_LOG.finditer(_prose(html))})
+        if hits:
+            bad[name] = hits
+    assert not bad, f"development-log wording on the site: {bad}"

@@ -63,19 +63,31 @@ class TrainConfig:
 
     Attributes
     ----------
-    data : folder with ``train.h5`` and ``valid.h5`` (``mdgs generate`` output).
-    out : run folder (:mod:`mdgs.runs`).
-    model_name : a key of :data:`mdgs.models.MODELS` (a learned model).
-    epochs : passes over all (trajectory, frame) training pairs.
-    batch_size : graphs per optimisation step.
-    lr : learning rate of the model's optimiser; ``None``: the model's own ``default_lr`` (MDGS, B.2:
+    data
+        folder with ``train.h5`` and ``valid.h5`` (``mdgs generate`` output).
+    out
+        run folder (:mod:`mdgs.runs`).
+    model_name
+        a key of :data:`mdgs.models.MODELS` (a learned model).
+    epochs
+        passes over all (trajectory, frame) training pairs.
+    batch_size
+        graphs per optimisation step.
+    lr
+        learning rate of the model's optimiser; ``None``: the model's own ``default_lr`` (MDGS, B.2:
         Adam 1e-3; GNS 1e-4).
-    seed : seeds parameter initialisation, batch order and noise.
-    device : "auto" (CUDA when present), "cpu" or "cuda".
-    max_steps : cap on optimisation steps per epoch (0: no cap, a full pass).
-    valid_max_pairs : cap on validation pairs per epoch (0: all; an even subsample otherwise).
-    log_every : steps between entries of ``steps.json``.
-    model : the model's config (``MODELS[model_name].Config``); ``None``: its defaults.
+    seed
+        seeds parameter initialisation, batch order and noise.
+    device
+        "auto" (CUDA when present), "cpu" or "cuda".
+    max_steps
+        cap on optimisation steps per epoch (0: no cap, a full pass).
+    valid_max_pairs
+        cap on validation pairs per epoch (0: all; an even subsample otherwise).
+    log_every
+        steps between entries of ``steps.json``.
+    model
+        the model's config (``MODELS[model_name].Config``); ``None``: its defaults.
         Settings the model takes from data are filled by its ``resolve_config``.
     """
 
