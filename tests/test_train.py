@@ -137,6 +137,27 @@ def test_a_checkpoint_older_than_a_setting_loads_with_its_old_meaning(run):
     assert (cfg.joints, cfg.object_scales, cfg.zero_init, cfg.actuation) == (False, False, False, "none")
 
 
+def test_a_run_older_than_a_setting_resumes_unless_the_setting_changed_its_behaviour(data, run, tmp_path):
+    """Resuming a run whose checkpoint predates a model setting: a setting that changes nothing unless
+    asked for (per-object noise sigmas) lets it resume; one whose old meaning differs from today's
+    default (the joint projection) is refused, naming it."""
+    import shutil
+
+    from mdgs.runs import RunError
+
+    for key, resumes in (("noise_sigma_xs", True), ("joints", False)):
+        folder = tmp_path / key
+        shutil.copytree(run, folder)
+        state = torch.load(folder / "checkpoint.pt", weights_only=False)
+        del state["train_fingerprint"]["model"][key]
+        torch.save(state, folder / "checkpoint.pt")
+        if resumes:
+            assert train(_cfg(data, folder)) == {}  # already finished: nothing to do, no error
+        else:
+            with pytest.raises(RunError, match=f"model.{key}"):
+                train(_cfg(data, folder))
+
+
 def test_training_loss_falls_and_outputs(run):
     """Median batch L_mse of the last epoch is well below the first epoch's.
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from contextlib import nullcontext
-from dataclasses import asdict, dataclass, replace
+from dataclasses import MISSING, asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -123,6 +123,17 @@ def _fingerprint(cfg: TrainConfig, model_cfg: dict) -> dict:
     return d
 
 
+def _with_absent(old: dict, config_cls) -> dict:
+    """A checkpoint's fingerprint with the model settings it predates filled in with what they meant then:
+    ``Config.ABSENT`` where a setting changed behaviour, else its default (a setting that changes nothing
+    unless asked for), so adding a setting to a model does not make every unfinished run unresumable."""
+    if "model" not in old:
+        return old
+    absent = {f.name: f.default for f in fields(config_cls) if f.default is not MISSING}
+    absent |= getattr(config_cls, "ABSENT", {})
+    return {**old, "model": {**{k: v for k, v in absent.items() if k not in old["model"]}, **old["model"]}}
+
+
 def _load_splits(cfg: TrainConfig, splits: dict | None) -> tuple[SplitData, SplitData]:
     if splits is None:
         splits = load_splits(cfg.data, ("train", "valid"))
@@ -185,8 +196,8 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
         if state["data_identity"]["mjcf_sha256"] != tr.identity()["mjcf_sha256"]:
             raise RunError(f"{out} holds a run trained on scene {state['data_identity']['scene']!r}, not on "
                            f"{tr.identity()['scene']!r} from {cfg.data}; choose another --out or delete {ckpt_path}")
-        if state["train_fingerprint"] != fp:
-            old = state["train_fingerprint"]
+        old = _with_absent(state["train_fingerprint"], cls.Config)
+        if old != fp:
             diff = sorted(k for k in fp if old.get(k) != fp[k])
             diff += sorted(f"model.{k}" for k in fp["model"] if old.get("model", {}).get(k) != fp["model"][k])
             raise RunError(f"{out} holds a run with other settings ({', '.join(x for x in diff if x != 'model')} "
