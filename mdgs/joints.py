@@ -83,7 +83,8 @@ class _Group:
     node : [M] the children's nodes, joint after joint; of : [M] the joint (position in the group)
     of each node; ref : [M, 3] their element centroids in the child frame; p_rel : [M, 3] the same
     about the anchor (``p_i - a_c``); mass : [M] element masses (kg); count, total : [G] nodes and
-    mass of each child; has_children : whether a later group hangs from one of these children.
+    mass of each child; has_children : whether a later group hangs from one of these children;
+    from_world : whether one of these joints hangs from the world.
     """
 
     kind: str
@@ -102,6 +103,7 @@ class _Group:
     count: torch.Tensor
     total: torch.Tensor
     has_children: bool
+    from_world: bool
 
 
 @dataclass
@@ -160,7 +162,8 @@ class JointSet:
         out = []
         for i, g in enumerate(groups):
             later = {int(p) for h in groups[i + 1:] for p in h["parent"]}
-            out.append(_Group(**g, has_children=bool(later & {int(c) for c in g["child"]})))
+            out.append(_Group(**g, has_children=bool(later & {int(c) for c in g["child"]}),
+                              from_world=bool((g["parent"] == n_obj).any())))
         self._cache[str(device)] = (sig, out)
         return out
 
@@ -251,9 +254,13 @@ def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torc
     R, t = kabsch(ref.to(dev, f64), xd, seg, n_obj)  # [B, S, 3, 3], [B, S, 3]
     tw = twist(xd, vd, seg, n_obj, mass.to(dev))
     # every object's corrected pose and twist (velocity of its mass centre, mass centre), with the
-    # world appended as object S: R = I, t = 0, at rest
-    R = torch.cat([R, torch.eye(3, dtype=f64, device=dev).expand(B, 1, 3, 3)], 1)
-    t, w, vc, c = (torch.cat([a, a.new_zeros(B, 1, 3)], 1) for a in (t, tw.omega, tw.vc, tw.c))
+    # world appended as object S (R = I, t = 0, at rest) when a joint hangs from it; tw keeps the predicted twists
+    w, vc, c = tw.omega, tw.vc, tw.c
+    if any(g.from_world for g in groups):
+        R = torch.cat([R, torch.eye(3, dtype=f64, device=dev).expand(B, 1, 3, 3)], 1)
+        t, w, vc, c = (torch.cat([a, a.new_zeros(B, 1, 3)], 1) for a in (t, w, vc, c))
+    elif any(g.has_children for g in groups):  # corrected in place below
+        w, vc, c = w.clone(), vc.clone(), c.clone()
     xo, vo = xd.clone(), vd.clone()
     for g in groups:
         G, k = len(g.child), g.of  # k: the joint of each of the group's nodes
