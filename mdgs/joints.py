@@ -273,8 +273,8 @@ def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torc
             N = zero_frame.transpose(-1, -2) @ _segment_sum(q_rel.unsqueeze(-1) * g.p_rel.unsqueeze(-2), k, G)
             skew = N - N.transpose(-1, -2)
             vee = torch.stack([skew[..., 2, 1], skew[..., 0, 2], skew[..., 1, 0]], -1)
-            theta = torch.atan2((vee * g.axis).sum(-1),
-                                N.diagonal(dim1=-2, dim2=-1).sum(-1) - torch.einsum("gi,bgij,gj->bg", g.axis, N, g.axis))
+            aNa = ((N @ g.axis.unsqueeze(-1)).squeeze(-1) * g.axis).sum(-1)  # a^T N a [B, G]
+            theta = torch.atan2((vee * g.axis).sum(-1), N.diagonal(dim1=-2, dim2=-1).sum(-1) - aNa)
             Rn = zero_frame @ rotation_matrix(theta.unsqueeze(-1) * g.axis)
         elif g.kind in ("slide", "weld"):
             Rn = zero_frame
