@@ -14,7 +14,8 @@ folder (:func:`bench_models.tiny_splits`). Printed per model, medians over ``--r
   time spent in arithmetic ops (below); ``overhead ms``: wall minus summed self CPU time, the time
   outside any torch op: Python, module calls, argument parsing before dispatch (and, for the
   MuJoCo reference, MuJoCo itself, which is not a torch op);
-- the 8 ops with the most self CPU time per step, ``*`` marking arithmetic ones.
+- the 8 ops with the most self CPU time per step, ``*`` marking arithmetic ones (``aten::`` left
+  out of the names; ``prims::`` ops come from decompositions, e.g. under ``torch.func``).
 
 Arithmetic ops compute new values from their inputs' values (``ARITHMETIC``, regexes on the
 ``aten::`` op name): matrix products (mm, addmm, bmm, matmul, linear, einsum, conv, baddbmm,
@@ -129,7 +130,7 @@ def main() -> None:
         r = profile_model(model, te, args.frames, args.repeats)
         print(f"{label:22s}{r['ms']:>9.3f}{r['prof_ms']:>9.3f}{r['op_ms']:>8.3f}{100 * r['arith']:>9.0f}"
               f"{r['overhead_ms']:>13.3f}")
-        print("    top ops (ms/step): " + ", ".join(f"{'*' if is_arithmetic(k) else ''}{k.split('::')[-1]} {t:.3f}"
+        print("    top ops (ms/step): " + ", ".join(f"{'*' if is_arithmetic(k) else ''}{k.removeprefix('aten::')} {t:.3f}"
                                                      for k, t in r["top"]), flush=True)
     print("ms/step: unprofiled; prof ms: wall with the profiler on; op ms: summed self CPU time of torch ops; "
           "arith %: its arithmetic share; overhead ms: Python/dispatch overhead (wall outside any torch op); "

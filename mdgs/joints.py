@@ -78,7 +78,7 @@ class Joint:
 class _Group:
     """Joints of one kind whose parents are final once the groups before it are done, stacked on one device.
 
-    child, parent : [G] object indices (the world is object ``S``, appended by :func:`project_joints`);
+    child, parent : [G] object indices (the world: ``S``, the frame :func:`project_joints` appends);
     q0 : [G, 3, 3]; axis, anchor, body_pos, anchor_parent (``a_p = body_pos + Q0 a_c``) : [G, 3];
     node : [M] the children's nodes, joint after joint; of : [M] the joint (position in the group)
     of each node; ref : [M, 3] their element centroids in the child frame; p_rel : [M, 3] the same
