@@ -24,6 +24,7 @@ import argparse
 import statistics
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -31,12 +32,13 @@ import torch
 from torch.utils.flop_counter import FlopCounterMode
 
 from mdgs.data.generate import GenerateConfig, generate
-from mdgs.data.split import load_split
+from mdgs.data.split import SplitData, load_split
 from mdgs.evaluate.cost import step_cost
-from mdgs.models import MODELS, batch_of
+from mdgs.models import MODELS, Simulator, batch_of
 
 
-def _median(fn, repeats: int, warmup: int = 2) -> float:
+def median_time(fn, repeats: int, warmup: int = 2) -> float:
+    """Median wall time (s) of ``fn()`` over ``repeats`` calls after ``warmup`` calls."""
     for _ in range(warmup):
         fn()
     ts = []
@@ -47,9 +49,32 @@ def _median(fn, repeats: int, warmup: int = 2) -> float:
     return statistics.median(ts)
 
 
+def tiny_splits(scene: str) -> tuple[SplitData, SplitData]:
+    """The train and test splits of a ``tiny`` dataset of ``scene``, generated into a temporary folder."""
+    with tempfile.TemporaryDirectory() as tmp:
+        generate(GenerateConfig(scene=scene, out=tmp, preset="tiny"))
+        return load_split(Path(tmp) / "train.h5"), load_split(Path(tmp) / "test.h5")
+
+
+def registry_models(names: list[str], tr: SplitData) -> Iterator[tuple[str, Simulator | str]]:
+    """``(label, model)`` for each registry name, built from ``tr`` with default settings (untrained);
+    MuJoCo twice: at the data's timestep and at one step per frame. A model that refuses the scene
+    gives its message (a str) in place of the model, so a table can say so and go on."""
+    for name in names:
+        cls = MODELS[name]
+        cfgs = [("", {})] if name != "mujoco" else [(" dt x1", {"dt_factor": 1}),
+                                                    (f" dt x{int(tr.attrs['substeps'])}",
+                                                     {"dt_factor": int(tr.attrs["substeps"])})]
+        for suffix, kw in cfgs:
+            try:
+                yield name + suffix, cls.from_data(tr, cls.Config(**kw))
+            except Exception as e:  # noqa: BLE001 - a model that refuses the scene says so and the table goes on
+                yield name + suffix, str(e)
+
+
 def _matmul_rate(repeats: int = 20) -> float:
     a, b = torch.randn(8192, 200), torch.randn(200, 200)
-    return 2.0 * 8192 * 200 * 200 / _median(lambda: a @ b, repeats)
+    return 2.0 * 8192 * 200 * 200 / median_time(lambda: a @ b, repeats)
 
 
 def main() -> None:
@@ -64,56 +89,48 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     names = args.models or list(MODELS)
-    with tempfile.TemporaryDirectory() as tmp:
-        generate(GenerateConfig(scene=args.scene, out=tmp, preset="tiny"))
-        tr, te = load_split(Path(tmp) / "train.h5"), load_split(Path(tmp) / "test.h5")
+    tr, te = tiny_splits(args.scene)
     rate = _matmul_rate()
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, frame {tr.frame_dt * 1e3:.0f} ms, torch threads "
           f"{args.threads}; dense matmul [8192x200]@[200x200] {rate / 1e9:.1f} GFLOP/s")
     head = f"{'model':22s}{'params':>10s}{'train ms':>10s}" + "".join(f"{'ms/tf b' + str(b):>12s}" for b in args.batches)
     print(head + f"{'% matmul':>10s}")
     rows = []
-    for name in names:
-        cls = MODELS[name]
-        cfgs = [("", {})] if name != "mujoco" else [(" dt x1", {"dt_factor": 1}),
-                                                    (f" dt x{int(tr.attrs['substeps'])}",
-                                                     {"dt_factor": int(tr.attrs["substeps"])})]
-        for suffix, kw in cfgs:
-            try:
-                model = cls.from_data(tr, cls.Config(**kw))
-            except Exception as e:  # noqa: BLE001 - a model that refuses the scene says so and the table goes on
-                print(f"{name + suffix:22s} refused: {e}")
-                continue
-            train_ms = "-"
-            if cls.learned:
-                opt, _, _ = model.optimizer(cls.default_lr)
-                pairs = tr.pairs(model.history)
-                idx = pairs[np.linspace(0, len(pairs) - 1, args.train_batch).astype(int)]
-                gen = torch.Generator().manual_seed(0)
+    for label, model in registry_models(names, tr):
+        if isinstance(model, str):
+            print(f"{label:22s} refused: {model}")
+            continue
+        cls = type(model)
+        train_ms = "-"
+        if cls.learned:
+            opt, _, _ = model.optimizer(cls.default_lr)
+            pairs = tr.pairs(model.history)
+            idx = pairs[np.linspace(0, len(pairs) - 1, args.train_batch).astype(int)]
+            gen = torch.Generator().manual_seed(0)
 
-                def train_step(model=model, opt=opt, idx=idx, gen=gen):
-                    b = model.perturb(batch_of(tr, idx, model.device, model.history), gen)
-                    loss = sum(w * model.losses(b)[k] for k, w in model.loss_weights().items())
-                    opt.zero_grad()
-                    loss.backward()
-                    opt.step()
-                model.train()
-                train_ms = f"{1e3 * _median(train_step, args.repeats, 1):.1f}"
-            costs = [step_cost(model, te, batch=b, frames=args.frames, repeats=args.repeats) for b in args.batches]
-            frac = "-"
-            if cls.learned:
-                big = args.batches[-1]
-                model.bind(te)
-                st = model.initial_state(te, np.arange(big) % te.x.shape[0], model.history)
-                ctrl = torch.from_numpy(te.ctrl[np.arange(big) % te.x.shape[0], model.history])
-                with torch.no_grad(), FlopCounterMode(display=False) as fc:
-                    model.step(st, ctrl)
-                flops = fc.get_total_flops()
-                frac = f"{100 * flops / (costs[-1]['ms_per_frame'] * 1e-3) / rate:.0f}"
-            line = (f"{name + suffix:22s}{model.parameter_count():>10d}{train_ms:>10s}"
-                    + "".join(f"{c['ms_per_trajectory_frame']:>12.3f}" for c in costs) + f"{frac:>10s}")
-            print(line, flush=True)
-            rows.append(line)
+            def train_step(model=model, opt=opt, idx=idx, gen=gen):
+                b = model.perturb(batch_of(tr, idx, model.device, model.history), gen)
+                loss = sum(w * model.losses(b)[k] for k, w in model.loss_weights().items())
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+            model.train()
+            train_ms = f"{1e3 * median_time(train_step, args.repeats, 1):.1f}"
+        costs = [step_cost(model, te, batch=b, frames=args.frames, repeats=args.repeats) for b in args.batches]
+        frac = "-"
+        if cls.learned:
+            big = args.batches[-1]
+            model.bind(te)
+            st = model.initial_state(te, np.arange(big) % te.x.shape[0], model.history)
+            ctrl = torch.from_numpy(te.ctrl[np.arange(big) % te.x.shape[0], model.history])
+            with torch.no_grad(), FlopCounterMode(display=False) as fc:
+                model.step(st, ctrl)
+            flops = fc.get_total_flops()
+            frac = f"{100 * flops / (costs[-1]['ms_per_frame'] * 1e-3) / rate:.0f}"
+        line = (f"{label:22s}{model.parameter_count():>10d}{train_ms:>10s}"
+                + "".join(f"{c['ms_per_trajectory_frame']:>12.3f}" for c in costs) + f"{frac:>10s}")
+        print(line, flush=True)
+        rows.append(line)
     print("ms/tf bN: milliseconds per trajectory-frame of a rollout step at batch N (batch 1: one trajectory); "
           "% matmul: FLOP rate of the largest batch against the dense matmul above")
 

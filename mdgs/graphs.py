@@ -147,17 +147,27 @@ def gcn_norm(edge_index: torch.Tensor, num_nodes: int, dtype=torch.float32, devi
     return torch.sparse_csr_tensor(crow, col, val, (num_nodes, num_nodes), check_invariants=False)
 
 
-def dense_contacts(pos: torch.Tensor, obj: torch.Tensor, r: float, static: torch.Tensor | None = None) -> torch.Tensor:
-    """``[B, N, N]`` bool adjacency of the contact edges: the dense form of :func:`contact_edges`
-    (the same pairs; for small scenes, where one ``[B, N, N]`` block is cheaper than edge lists)."""
-    if pos.dim() == 2:
-        pos = pos.unsqueeze(0)
-    obj = obj.to(pos.device)
-    d = torch.cdist(pos, pos, compute_mode="donot_use_mm_for_euclid_dist")
+def contact_candidates(obj: torch.Tensor, static: torch.Tensor | None = None) -> torch.Tensor:
+    """``[N, N]`` bool: the node pairs a contact edge may join (different objects, not both static)."""
     keep = obj[:, None] != obj[None, :]
     if static is not None:
-        st = static.to(pos.device)
+        st = static.to(obj.device)
         keep = keep & ~(st[:, None] & st[None, :])
+    return keep
+
+
+def dense_contacts(pos: torch.Tensor, obj: torch.Tensor, r: float, static: torch.Tensor | None = None,
+                   candidates: torch.Tensor | None = None) -> torch.Tensor:
+    """``[B, N, N]`` bool adjacency of the contact edges: the dense form of :func:`contact_edges`
+    (the same pairs; for small scenes, where one ``[B, N, N]`` block is cheaper than edge lists).
+
+    candidates : [N, N] bool, :func:`contact_candidates` of ``obj`` and ``static`` if already built
+    (:meth:`SceneGraph.contact_candidates` caches it); otherwise built from them.
+    """
+    if pos.dim() == 2:
+        pos = pos.unsqueeze(0)
+    d = torch.cdist(pos, pos, compute_mode="donot_use_mm_for_euclid_dist")
+    keep = contact_candidates(obj.to(pos.device), static) if candidates is None else candidates
     return (d < r) & keep
 
 
@@ -269,17 +279,36 @@ class SceneGraph:
     object_graph: ObjectGraph
     has_contact: bool
     contact_radius: float
+    _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def num_nodes(self) -> int:
         return int(self.obj.shape[0])
 
     def properties(self) -> torch.Tensor:
-        """Static node properties ``k_i`` = [mass, volume, tau, object type (3)] -> [N, 6]."""
-        return torch.cat([self.mass[:, None], self.volume[:, None], self.tau[:, None], self.obj_type], dim=1)
+        """Static node properties ``k_i`` = [mass, volume, tau, object type (3)] -> [N, 6] (built once)."""
+        k = self._cache.get("properties")
+        if k is None:
+            k = torch.cat([self.mass[:, None], self.volume[:, None], self.tau[:, None], self.obj_type], dim=1)
+            self._cache["properties"] = k
+        return k
+
+    def moving(self, device) -> torch.Tensor:
+        """``[N]`` bool, the nodes that move (``~static``), on ``device`` (cached)."""
+        key = ("moving", str(device))
+        if key not in self._cache:
+            self._cache[key] = ~self.static.to(device)
+        return self._cache[key]
+
+    def contact_candidates(self, device) -> torch.Tensor:
+        """``[N, N]`` bool :func:`contact_candidates` of the scene on ``device`` (cached)."""
+        key = ("contact_candidates", str(device))
+        if key not in self._cache:
+            self._cache[key] = contact_candidates(self.obj.to(device), self.static.to(device))
+        return self._cache[key]
 
     def to(self, device) -> SceneGraph:
-        kw = {k: (v.to(device) if isinstance(v, torch.Tensor) else v) for k, v in self.__dict__.items()}
+        kw = {k: (v.to(device) if isinstance(v, torch.Tensor) else v) for k, v in self.__dict__.items() if k != "_cache"}
         return SceneGraph(**kw)
 
     @classmethod

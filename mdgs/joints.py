@@ -4,7 +4,9 @@ The structural module (Appendix B.1.3, :mod:`mdgs.structure`) keeps every object
 nothing in MDGS keeps jointed objects together: a flywheel can leave its cube. This module
 reads the joints of the scene's MJCF and, after each step, projects the predicted state onto
 the set of states the joints allow, parents before children (MuJoCo numbers bodies so that a
-parent precedes its children):
+parent precedes its children): level by level down the kinematic tree, the joints of one kind
+whose parents are already placed in one batched pass (:meth:`JointSet.tensors`; a Cubli's three
+hinged flywheels are one pass):
 
 pose of each parent ``(R, t)``: Kabsch of its reference shape (element centroids ``p`` in its
 body frame, :attr:`mdgs.graphs.SceneGraph.ref_shape`) onto the predicted nodes ``q``, so
@@ -72,6 +74,38 @@ class Joint:
     anchor: np.ndarray
 
 
+@dataclass(frozen=True)
+class _Group:
+    """Joints of one kind whose parents are final once the groups before it are done, stacked on one device.
+
+    child, parent : [G] object indices (the world: ``S``, the frame :func:`project_joints` appends);
+    q0 : [G, 3, 3]; axis, anchor, body_pos, anchor_parent (``a_p = body_pos + Q0 a_c``) : [G, 3];
+    node : [M] the children's nodes, joint after joint; of : [M] the joint (position in the group)
+    of each node; ref : [M, 3] their element centroids in the child frame; p_rel : [M, 3] the same
+    about the anchor (``p_i - a_c``); mass : [M] element masses (kg); count, total : [G] nodes and
+    mass of each child; has_children : whether a later group hangs from one of these children;
+    from_world : whether one of these joints hangs from the world.
+    """
+
+    kind: str
+    child: torch.Tensor
+    parent: torch.Tensor
+    q0: torch.Tensor
+    axis: torch.Tensor
+    anchor: torch.Tensor
+    body_pos: torch.Tensor
+    anchor_parent: torch.Tensor
+    node: torch.Tensor
+    of: torch.Tensor
+    ref: torch.Tensor
+    p_rel: torch.Tensor
+    mass: torch.Tensor
+    count: torch.Tensor
+    total: torch.Tensor
+    has_children: bool
+    from_world: bool
+
+
 @dataclass
 class JointSet:
     """The joints the projection enforces (parents first) and the ones it leaves alone, with why."""
@@ -83,18 +117,55 @@ class JointSet:
     def __bool__(self) -> bool:
         return bool(self.joints)
 
-    def tensors(self, seg: torch.Tensor) -> list[tuple]:
-        """Per joint ``(q0, axis, anchor, body_pos, anchor in the parent frame, child's node indices)``
-        as float64 / int64 tensors on ``seg``'s device, built once per device and node map."""
-        key = (str(seg.device), seg.data_ptr(), seg.numel())
-        if key not in self._cache:
-            f = dict(dtype=torch.float64, device=seg.device)
-            out = []
-            for j in self.joints:
-                q0, a, ac, bp = (torch.as_tensor(v, **f) for v in (j.q0, j.axis, j.anchor, j.body_pos))
-                out.append((q0, a, ac, bp, bp + q0 @ ac, torch.nonzero(seg == j.child).flatten()))
-            self._cache[key] = out
-        return self._cache[key]
+    def levels(self) -> list[list[int]]:
+        """Indices into ``joints`` by depth in the kinematic tree: level 0 hangs from the world or from
+        objects no enforced joint moves, level ``d + 1`` from children of level ``d``."""
+        depth: dict[int, int] = {}  # object -> depth of the joint that makes it a child
+        out: list[list[int]] = []
+        for i, j in enumerate(self.joints):  # parents first, so a parent's depth is known
+            depth[j.child] = d = depth.get(j.parent, -1) + 1
+            out += [[] for _ in range(d + 1 - len(out))]
+            out[d].append(i)
+        return out
+
+    def tensors(self, seg: torch.Tensor, ref: torch.Tensor, mass: torch.Tensor, n_obj: int,
+                device=None) -> list[_Group]:
+        """The joints as :class:`_Group` s, level by level and kind by kind (``KINDS``), on ``device``
+        (default ``seg``'s): built from the scene's ``seg`` [N], ``ref`` [N, 3] and ``mass`` [N] once
+        per device and kept while the same scene tensors are passed."""
+        device = seg.device if device is None else torch.device(device)
+        sig = tuple((a.data_ptr(), tuple(a.shape), a.dtype) for a in (seg, ref, mass)) + (n_obj,)
+        hit = self._cache.get(str(device))
+        if hit is not None and hit[0] == sig:
+            return hit[1]
+        f = dict(dtype=torch.float64, device=device)
+        seg, ref, mass = seg.to(device), ref.to(**f), mass.to(**f)
+        groups = []
+        for level in self.levels():
+            for kind in KINDS:
+                js = [self.joints[i] for i in level if self.joints[i].kind == kind]
+                if not js:
+                    continue
+                st = {k: torch.as_tensor(np.stack([getattr(j, k) for j in js]), **f)
+                      for k in ("q0", "axis", "anchor", "body_pos")}
+                nodes = [torch.nonzero(seg == j.child).flatten() for j in js]
+                node = torch.cat(nodes)
+                of = torch.cat([torch.full_like(n, g) for g, n in enumerate(nodes)])
+                m = mass[node]
+                groups.append(dict(
+                    kind=kind, child=torch.tensor([j.child for j in js], device=device),
+                    parent=torch.tensor([j.parent if j.parent >= 0 else n_obj for j in js], device=device),
+                    anchor_parent=st["body_pos"] + (st["q0"] @ st["anchor"].unsqueeze(-1)).squeeze(-1),
+                    node=node, of=of, ref=ref[node], p_rel=ref[node] - st["anchor"][of], mass=m,
+                    count=torch.tensor([len(n) for n in nodes], **f),
+                    total=torch.zeros(len(js), **f).index_add_(0, of, m), **st))
+        out = []
+        for i, g in enumerate(groups):
+            later = {int(p) for h in groups[i + 1:] for p in h["parent"]}
+            out.append(_Group(**g, has_children=bool(later & {int(c) for c in g["child"]}),
+                              from_world=bool((g["parent"] == n_obj).any())))
+        self._cache[str(device)] = (sig, out)
+        return out
 
 
 def _posable(ref: np.ndarray) -> bool:
@@ -153,9 +224,15 @@ def joints_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Joi
 
 
 def _point_velocity(vc: torch.Tensor, w: torch.Tensor, c: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-    """Velocity at world points ``y`` [B, k, 3] of a rigid body with mass-centre velocity ``vc``, angular
-    velocity ``w`` and mass centre ``c`` (each [B, 3]): ``vc + w x (y - c)``."""
-    return vc.unsqueeze(1) + torch.linalg.cross(w.unsqueeze(1).expand_as(y), y - c.unsqueeze(1), dim=-1)
+    """Velocity at world points ``y`` of a rigid body with mass-centre velocity ``vc``, angular velocity ``w``
+    and mass centre ``c`` (all [..., 3], broadcast): ``vc + w x (y - c)``."""
+    r = y - c
+    return vc + torch.linalg.cross(w.expand_as(r), r, dim=-1)
+
+
+def _segment_sum(a: torch.Tensor, of: torch.Tensor, n: int) -> torch.Tensor:
+    """Sum of ``a`` [B, M, ...] over the nodes of each joint of a group (``of`` [M]) -> [B, n, ...]."""
+    return a.new_zeros(a.shape[0], n, *a.shape[2:]).index_add_(1, of, a)
 
 
 def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torch.Tensor, seg: torch.Tensor,
@@ -164,75 +241,70 @@ def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torc
 
     ref : [N, 3] element centroids in their body frames; seg : [N] object of each node;
     mass : [N] element masses (for the predicted twists). Nodes of objects that no enforced joint
-    makes a child are returned unchanged.
+    makes a child are returned unchanged. The joints are projected group by group
+    (:meth:`JointSet.tensors`: one kind at one depth of the tree), each group in one batched pass.
     """
     if not joints:
         return x, v
     dev, f64 = x.device, torch.float64
+    groups = joints.tensors(seg, ref, mass, n_obj, dev)
     xd, vd = x.to(f64), v.to(f64)
     seg = seg.to(dev)
+    B = x.shape[0]
     R, t = kabsch(ref.to(dev, f64), xd, seg, n_obj)  # [B, S, 3, 3], [B, S, 3]
     tw = twist(xd, vd, seg, n_obj, mass.to(dev))
-    R, t = R.clone(), t.clone()
-    w = tw.omega.clone()  # corrected angular velocity of each object
-    # corrected velocity of each object as (velocity of its mass centre, mass centre)
-    vc, c = tw.vc.clone(), tw.c.clone()
-    B = x.shape[0]
+    # every object's corrected pose and twist (velocity of its mass centre, mass centre), with the
+    # world appended as object S (R = I, t = 0, at rest) when a joint hangs from it; tw keeps the predicted twists
+    w, vc, c = tw.omega, tw.vc, tw.c
+    if any(g.from_world for g in groups):
+        R = torch.cat([R, torch.eye(3, dtype=f64, device=dev).expand(B, 1, 3, 3)], 1)
+        t, w, vc, c = (torch.cat([a, a.new_zeros(B, 1, 3)], 1) for a in (t, w, vc, c))
+    elif any(g.has_children for g in groups):  # corrected in place below
+        w, vc, c = w.clone(), vc.clone(), c.clone()
     xo, vo = xd.clone(), vd.clone()
-    refd = ref.to(dev, f64)
-
-    def parent_frame(p):
-        if p < 0:
-            eye = torch.eye(3, dtype=f64, device=dev).expand(B, 3, 3)
-            zero = torch.zeros(B, 3, dtype=f64, device=dev)
-            return eye, zero, zero, zero, zero
-        return R[:, p], t[:, p], w[:, p], vc[:, p], c[:, p]
-
-    for j, (q0, a, ac, bp, ap, idx) in zip(joints.joints, joints.tensors(seg), strict=True):
-        Rp, tp, wp, vcp, cp = parent_frame(j.parent)
-        Rc, wc = R[:, j.child], tw.omega[:, j.child]
-        p_rel = refd[idx] - ac  # child nodes about the anchor, child frame [k, 3]
-        A = (Rp @ ap) + tp  # anchor on the parent, world [B, 3]
-        zero_frame = Rp @ q0  # child frame at zero joint angle [B, 3, 3]
-        q_rel = xd[:, idx] - A.unsqueeze(1)  # predicted nodes about the anchor [B, k, 3]
-        if j.kind == "hinge":  # best fit of the nodes by zero_frame Rot(a, theta) p_rel
-            N = zero_frame.transpose(-1, -2) @ torch.einsum("bki,kj->bij", q_rel, p_rel)
+    for g in groups:
+        G, k = len(g.child), g.of  # k: the joint of each of the group's nodes
+        Rp, tp, wp, vcp, cp = R[:, g.parent], t[:, g.parent], w[:, g.parent], vc[:, g.parent], c[:, g.parent]
+        wc = tw.omega[:, g.child]  # predicted angular velocity of each child [B, G, 3]
+        A = (Rp @ g.anchor_parent.unsqueeze(-1)).squeeze(-1) + tp  # anchor on the parent, world [B, G, 3]
+        zero_frame = Rp @ g.q0  # child frame at zero joint angle [B, G, 3, 3]
+        q_rel = xd[:, g.node] - A[:, k]  # predicted nodes about the anchor [B, M, 3]
+        if g.kind == "hinge":  # best fit of the nodes by zero_frame Rot(a, theta) p_rel
+            N = zero_frame.transpose(-1, -2) @ _segment_sum(q_rel.unsqueeze(-1) * g.p_rel.unsqueeze(-2), k, G)
             skew = N - N.transpose(-1, -2)
-            vee = torch.stack([skew[:, 2, 1], skew[:, 0, 2], skew[:, 1, 0]], -1)
-            theta = torch.atan2(vee @ a, N.diagonal(dim1=-2, dim2=-1).sum(-1) - torch.einsum("i,bij,j->b", a, N, a))
-            Rn = zero_frame @ rotation_matrix(theta.unsqueeze(-1) * a)
-        elif j.kind in ("slide", "weld"):
+            vee = torch.stack([skew[..., 2, 1], skew[..., 0, 2], skew[..., 1, 0]], -1)
+            aNa = ((N @ g.axis.unsqueeze(-1)).squeeze(-1) * g.axis).sum(-1)  # a^T N a [B, G]
+            theta = torch.atan2((vee * g.axis).sum(-1), N.diagonal(dim1=-2, dim2=-1).sum(-1) - aNa)
+            Rn = zero_frame @ rotation_matrix(theta.unsqueeze(-1) * g.axis)
+        elif g.kind in ("slide", "weld"):
             Rn = zero_frame
         else:  # ball
-            Rn = Rc
-        if j.kind == "slide":  # best fit of the nodes by Rn p_rel + A + s n
-            n = Rn @ a
-            s_fit = ((q_rel - (Rn.unsqueeze(1) @ p_rel.unsqueeze(-1)).squeeze(-1)) * n.unsqueeze(1)).sum(-1).mean(1)
-            tn = A + s_fit.unsqueeze(-1) * n - Rn @ ac
-        elif j.kind == "weld":
-            tn = Rp @ bp + tp
+            Rn = R[:, g.child]
+        if g.kind in ("hinge", "slide"):
+            n = (Rn @ g.axis.unsqueeze(-1)).squeeze(-1)  # joint axis, world [B, G, 3]
+        if g.kind == "slide":  # best fit of the nodes by Rn p_rel + A + s n
+            resid = ((q_rel - (Rn[:, k] @ g.p_rel.unsqueeze(-1)).squeeze(-1)) * n[:, k]).sum(-1)  # [B, M]
+            s_fit = _segment_sum(resid, k, G) / g.count
+            tn = A + s_fit.unsqueeze(-1) * n - (Rn @ g.anchor.unsqueeze(-1)).squeeze(-1)
+        elif g.kind == "weld":
+            tn = (Rp @ g.body_pos.unsqueeze(-1)).squeeze(-1) + tp
         else:
-            tn = A - Rn @ ac
-        xn = (Rn.unsqueeze(1) @ refd[idx].unsqueeze(-1)).squeeze(-1) + tn.unsqueeze(1)  # [B, k, 3]
-        An = A.unsqueeze(1)
-        if j.kind == "hinge":
-            n = Rn @ a
-            wn = wp + ((wc - wp) * n).sum(-1, keepdim=True) * n
-            vn = _point_velocity(vcp, wp, cp, An) + torch.linalg.cross(wn.unsqueeze(1).expand_as(xn), xn - An, dim=-1)
-        elif j.kind == "ball":
-            wn = wc
-            vn = _point_velocity(vcp, wp, cp, An) + torch.linalg.cross(wn.unsqueeze(1).expand_as(xn), xn - An, dim=-1)
+            tn = A - (Rn @ g.anchor.unsqueeze(-1)).squeeze(-1)
+        xn = (Rn[:, k] @ g.ref.unsqueeze(-1)).squeeze(-1) + tn[:, k]  # [B, M, 3]
+        v_A = _point_velocity(vcp, wp, cp, A)  # the parent's velocity at the anchor [B, G, 3]
+        if g.kind in ("hinge", "ball"):
+            wn = wp + ((wc - wp) * n).sum(-1, keepdim=True) * n if g.kind == "hinge" else wc
+            vn = _point_velocity(v_A[:, k], wn[:, k], A[:, k], xn)
         else:
             wn = wp
-            vn = _point_velocity(vcp, wp, cp, xn)
-            if j.kind == "slide":
-                n = Rn @ a
-                v_child_A = tw.vc[:, j.child] + torch.linalg.cross(wc, A - tw.c[:, j.child], dim=-1)
-                rate = ((v_child_A - _point_velocity(vcp, wp, cp, An).squeeze(1)) * n).sum(-1, keepdim=True)
-                vn = vn + (rate * n).unsqueeze(1)
-        xo[:, idx], vo[:, idx] = xn, vn
-        R[:, j.child], t[:, j.child], w[:, j.child] = Rn, tn, wn
-        mc = mass.to(dev, f64)[idx]
-        c[:, j.child] = (mc[None, :, None] * xn).sum(1) / mc.sum()
-        vc[:, j.child] = (mc[None, :, None] * vn).sum(1) / mc.sum()
+            vn = _point_velocity(vcp[:, k], wp[:, k], cp[:, k], xn)
+            if g.kind == "slide":
+                v_child_A = _point_velocity(tw.vc[:, g.child], wc, tw.c[:, g.child], A)
+                rate = ((v_child_A - v_A) * n).sum(-1, keepdim=True)
+                vn = vn + (rate * n)[:, k]
+        xo[:, g.node], vo[:, g.node] = xn, vn
+        if g.has_children:  # later groups hang from these children: their corrected pose and twist
+            R[:, g.child], t[:, g.child], w[:, g.child] = Rn, tn, wn
+            c[:, g.child] = _segment_sum(g.mass[:, None] * xn, k, G) / g.total[:, None]
+            vc[:, g.child] = _segment_sum(g.mass[:, None] * vn, k, G) / g.total[:, None]
     return xo.to(x.dtype), vo.to(v.dtype)

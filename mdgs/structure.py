@@ -23,7 +23,7 @@ def segment_mean(x: torch.Tensor, seg: torch.Tensor, n_seg: int, weight: torch.T
     ``weight`` [N] (default 1). Empty segments give 0.
     """
     w = torch.ones(seg.shape[0], dtype=x.dtype, device=x.device) if weight is None else weight.to(x.dtype)
-    num = x.new_zeros(x.shape[0], n_seg, x.shape[-1]).index_add_(1, seg, x * w[None, :, None])
+    num = x.new_zeros(x.shape[0], n_seg, x.shape[-1]).index_add_(1, seg, x if weight is None else x * w[None, :, None])
     den = x.new_zeros(n_seg).index_add_(0, seg, w).clamp_min(torch.finfo(x.dtype).tiny)
     return num / den[None, :, None]
 
@@ -63,13 +63,16 @@ def kabsch(ref: torch.Tensor, pred: torch.Tensor, seg: torch.Tensor, n_seg: int 
     cq = segment_mean(q, seg, n_seg, weight)
     pc = p - cp[:, seg]
     qc = q - cq[:, seg]
-    w = torch.ones(seg.shape[0], dtype=torch.float64, device=q.device) if weight is None else weight.to(torch.float64)
-    outer = (w[None, :, None, None] * pc.unsqueeze(-1) * qc.unsqueeze(-2))  # [B, N, 3, 3]
+    if weight is None:
+        outer = pc.unsqueeze(-1) * qc.unsqueeze(-2)  # [B, N, 3, 3]
+    else:
+        outer = weight.to(torch.float64)[None, :, None, None] * pc.unsqueeze(-1) * qc.unsqueeze(-2)
     H = q.new_zeros(B, n_seg, 3, 3).index_add_(1, seg, outer)
     # a diverged prediction (NaN/Inf) gets a NaN placement instead of an SVD error, so a rollout
     # marks the trajectory as diverged rather than aborting the whole batch
     bad = ~torch.isfinite(H).flatten(-2).all(-1)  # [B, S]
-    if bad.any():
+    any_bad = bool(bad.any())  # one host sync
+    if any_bad:
         H = torch.where(bad[..., None, None], torch.eye(3, dtype=H.dtype, device=H.device), H)
     U, _, Vh = torch.linalg.svd(H)
     V = Vh.transpose(-1, -2)
@@ -78,7 +81,7 @@ def kabsch(ref: torch.Tensor, pred: torch.Tensor, seg: torch.Tensor, n_seg: int 
     D = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], -1))
     R = V @ D @ U.transpose(-1, -2)
     t = cq - (R @ cp.unsqueeze(-1)).squeeze(-1)
-    if bad.any():
+    if any_bad:
         R = torch.where(bad[..., None, None], torch.nan, R)
         t = torch.where(bad[..., None], torch.nan, t)
     return R, t

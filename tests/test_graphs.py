@@ -8,7 +8,9 @@ from mdgs.graphs import (
     ObjectGraph,
     SceneGraph,
     batch_edges,
+    contact_candidates,
     contact_edges,
+    dense_contacts,
     gcn_norm,
     object_edges,
 )
@@ -35,6 +37,21 @@ def test_contact_edges_hand_made_scene():
     # two static nodes never form a contact edge
     static = torch.tensor([False, True, True, False])
     assert _pairs(contact_edges(pos, obj, r=0.06, static=static)) == set()
+
+
+def test_dense_contacts_are_the_contact_edges():
+    """The dense [B, N, N] form holds the pairs of the edge list, with candidates built or passed in."""
+    pos = torch.tensor([[0.0, 0, 0], [0.1, 0, 0], [0.15, 0, 0], [0.2, 0, 0]])
+    obj = torch.tensor([0, 0, 1, 2])
+    for static in (None, torch.tensor([False, False, True, True])):
+        expected = _pairs(contact_edges(pos, obj, r=0.12, static=static))
+        assert expected  # not vacuous
+        for cand in (None, contact_candidates(obj, static)):
+            _, i, j = dense_contacts(pos, obj, 0.12, static, candidates=cand).nonzero(as_tuple=True)
+            assert _pairs(torch.stack([i, j])) == expected
+    # nodes 2, 3 (different objects, 0.05 apart) touch unless both are static
+    assert (2, 3) in _pairs(contact_edges(pos, obj, r=0.12))
+    assert not bool(contact_candidates(obj, torch.tensor([False, False, True, True]))[2, 3])
 
 
 def test_contact_edges_far_from_origin_and_batched():
@@ -113,3 +130,8 @@ def test_scene_graph_from_static_arrays():
     assert sc.obj_type.argmax(1).tolist() == [0, 0, 1, 1, 2]
     assert sc.contact_radius == pytest.approx(0.6)
     assert sc.properties().shape == (5, 6)
+    assert sc.moving("cpu").tolist() == [False, False, True, True, True]
+    # contact candidates: nodes of different objects, never two static ones
+    expected = (sc.obj[:, None] != sc.obj[None, :]) & ~(sc.static[:, None] & sc.static[None, :])
+    assert torch.equal(sc.contact_candidates("cpu"), expected)
+    assert torch.equal(sc.to("cpu").properties(), sc.properties())

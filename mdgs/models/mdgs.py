@@ -466,7 +466,8 @@ class MDGS(Simulator):
         obj_prop = scene.object_graph.propagator(B, dev, dt)
         f_nc = c.force_scale * self.force_noncontact(obj_prop, z)  # Eq. (4)
         if self.contact and scene.has_contact and N <= c.dense_max_nodes:  # one [B, N, N] block per graph
-            a_c = dense_contacts(x.detach(), scene.obj, scene.contact_radius, scene.static)
+            a_c = dense_contacts(x.detach(), scene.obj, scene.contact_radius,
+                                 candidates=scene.contact_candidates(dev))
             union = Propagator(dense=gcn_norm_adjacency(a_c | scene.object_graph.adjacency(dev), dt))
             z_glob = self.global_gather(union, z)  # Eq. (5)
             f_c = c.force_scale * self.force_contact(Propagator(dense=gcn_norm_adjacency(a_c, dt)),
@@ -499,7 +500,7 @@ class MDGS(Simulator):
         x_next, v_next = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx,
                                                    dv_scale=sv, dvc_scale=c.dvc_scale,
                                                    dw_scale=c.dw_scale)
-        moving = ~scene.static.to(dev)
+        moving = scene.moving(dev)
         if c.structure:
             x_next = align_to_reference(x_next, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj, mask=moving)
         if simulate and c.joints and self._joints:

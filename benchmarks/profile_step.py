@@ -1,0 +1,141 @@
+"""Where a single-trajectory rollout step of every model spends its time: arithmetic or overhead.
+
+    python benchmarks/profile_step.py [--scene cubli-triple] [--models mdgs gns ...] [--frames 10] [--repeats 5]
+
+One run, this machine, CPU, one torch thread, batch 1 (one trajectory), untrained weights (the cost
+of a step does not depend on training), on a ``tiny`` dataset of the scene written to a temporary
+folder (:func:`bench_models.tiny_splits`). Printed per model, medians over ``--repeats``:
+
+- ``ms/step``: wall milliseconds per step without the profiler (:func:`mdgs.evaluate.cost.step_cost`,
+  the quantity of the study's speed-accuracy chart; ``cost_step`` where a model has one);
+- under ``torch.profiler`` (a rollout of ``--frames`` steps after two warm-up steps):
+  ``prof ms``: wall ms per step with the profiler on (it adds its own cost to every op);
+  ``op ms``: the summed self CPU time of all torch ops per step; ``arith %``: the share of that
+  time spent in arithmetic ops (below); ``overhead ms``: wall minus summed self CPU time, the time
+  outside any torch op: Python, module calls, argument parsing before dispatch (and, for the
+  MuJoCo reference, MuJoCo itself, which is not a torch op);
+- the 8 ops with the most self CPU time per step, ``*`` marking arithmetic ones (``aten::`` left
+  out of the names; ``prims::`` ops come from decompositions, e.g. under ``torch.func``).
+
+Arithmetic ops compute new values from their inputs' values (``ARITHMETIC``, regexes on the
+``aten::`` op name): matrix products (mm, addmm, bmm, matmul, linear, einsum, conv, baddbmm,
+sparse mm), linear algebra (SVD, solve, det, LU, cross, cdist), elementwise math (add, sub, mul,
+div, neg, pow, sqrt, rsqrt, exp, log, trigonometric, relu, clamp, abs, sign, comparisons,
+logical ops, where) and reductions (sum, mean, prod, norm, amax/amin, any/all, cumsum, and the
+scatter-sums index_add/scatter_add/scatter_reduce/segment_reduce). Everything else is not
+arithmetic: tensor creation (empty, zeros, ones, full, eye, arange, tensor/as_tensor, to/copy),
+views and shape changes (view, reshape, expand, unsqueeze, transpose, select, slice, as_strided,
+contiguous, clone), indexing and data movement (index, index_put, index_select, gather, scatter,
+cat, stack, nonzero, unique, masked_select), error checks (``_linalg_check_errors``), ``item``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import statistics
+import time
+from collections import defaultdict
+
+import numpy as np
+import torch
+from bench_models import registry_models, tiny_splits
+from torch.profiler import ProfilerActivity, profile
+
+from mdgs.evaluate.cost import step_cost
+from mdgs.models import MODELS
+
+#: Regexes on the op name (without ``aten::``) of the ops that count as arithmetic (module docstring).
+ARITHMETIC = [
+    # matrix products
+    r"^_?(mm|addmm|bmm|baddbmm|matmul|linear|einsum|addmv|mv|dot|tensordot)$", r"^_?sparse\w*mm",
+    r"^_?(convolution|conv[123]d|conv_transpose\w*|mkldnn_convolution|_convolution)$",
+    # linear algebra (not its error checks)
+    r"^_?linalg_(?!check_errors)", r"^_?(svd|det|lu_factor\w*|lu_solve|cross|cdist|_cdist_forward|euclidean_dist)$",
+    # elementwise math, comparisons, logical ops, where
+    r"^(add|sub|rsub|mul|div|neg|reciprocal|pow|sqrt|rsqrt|exp|log|log1p|expm1|sin|cos|tan|atan2|atan|asin|acos"
+    r"|sinh|cosh|tanh|sigmoid|relu|threshold|clamp|clamp_min|clamp_max|abs|sign|sgn|maximum|minimum|fmod|remainder"
+    r"|floor|ceil|round|trunc|square|addcmul|addcdiv|lerp|where|lt|le|gt|ge|eq|ne|logical_\w+|bitwise_\w+"
+    r"|isfinite|isnan|isinf|floor_divide|softplus|silu|gelu|elu)_?$",
+    # reductions, scatter-sums included
+    r"^(sum|mean|prod|norm|amax|amin|max|min|any|all|cumsum|cumprod|var|std|logsumexp|softmax|_softmax|log_softmax"
+    r"|_log_softmax|bincount|index_add|scatter_add|scatter_reduce|segment_reduce|_segment_reduce)_?$",
+]
+_ARITH = [re.compile(p) for p in ARITHMETIC]
+
+
+def is_arithmetic(op: str) -> bool:
+    """Whether the profiler op ``op`` (e.g. ``aten::addmm``) is arithmetic (``ARITHMETIC``)."""
+    name = op.split("::", 1)[-1]
+    return any(p.search(name) for p in _ARITH)
+
+
+def _profiled_rollout(step, state, ctrl) -> tuple[float, dict[str, float]]:
+    """Wall seconds of ``len(ctrl)`` steps under the profiler and the self CPU seconds of each op."""
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        t0 = time.perf_counter()
+        s = state
+        for c in ctrl:
+            s = step(s, c)
+        wall = time.perf_counter() - t0
+    self_s: dict[str, float] = defaultdict(float)
+    for e in prof.key_averages():  # an op can come in several entries (e.g. forward and backward)
+        self_s[e.key] += e.self_cpu_time_total * 1e-6
+    return wall, self_s
+
+
+@torch.no_grad()
+def profile_model(model, te, frames: int, repeats: int) -> dict:
+    """Per-step medians (ms) of one model on one trajectory of ``te`` (module docstring)."""
+    ms = step_cost(model, te, batch=1, frames=frames, repeats=repeats)["ms_per_frame"]
+    h = model.history
+    frames = max(1, min(frames, te.x.shape[1] - h - 1))
+    ctrl = [torch.from_numpy(te.ctrl[[0], h + t]) for t in range(frames)]
+    step = getattr(model, "cost_step", model.step)
+    walls, ops, arith, per_op = [], [], [], defaultdict(float)
+    for _ in range(repeats):
+        state = model.initial_state(te, np.array([0]), h)
+        for c in ctrl[:2]:  # warm-up (first-call allocations, caches)
+            step(state, c)
+        wall, self_s = _profiled_rollout(step, state, ctrl)
+        total = sum(self_s.values())
+        walls.append(wall)
+        ops.append(total)
+        arith.append(sum(t for k, t in self_s.items() if is_arithmetic(k)) / max(total, 1e-12))
+        for k, t in self_s.items():
+            per_op[k] += t / repeats
+    per_step = lambda s: 1e3 * s / frames  # noqa: E731
+    return {"ms": ms, "prof_ms": per_step(statistics.median(walls)), "op_ms": per_step(statistics.median(ops)),
+            "arith": statistics.median(arith),
+            "overhead_ms": per_step(statistics.median(w - o for w, o in zip(walls, ops, strict=True))),
+            "top": sorted(((k, per_step(t)) for k, t in per_op.items()), key=lambda kt: -kt[1])[:8]}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scene", default="cubli-triple")
+    ap.add_argument("--models", nargs="*", default=None, help="registry names (default: all)")
+    ap.add_argument("--frames", type=int, default=10, help="steps per profiled rollout")
+    ap.add_argument("--repeats", type=int, default=5)
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    tr, te = tiny_splits(args.scene)
+    print(f"scene {args.scene}: {tr.x.shape[2]} nodes, batch 1, CPU, 1 torch thread; per step, medians of "
+          f"{args.repeats} rollouts of {args.frames} steps")
+    print(f"{'model':22s}{'ms/step':>9s}{'prof ms':>9s}{'op ms':>8s}{'arith %':>9s}{'overhead ms':>13s}")
+    for label, model in registry_models(args.models or list(MODELS), tr):
+        if isinstance(model, str):
+            print(f"{label:22s} refused: {model}")
+            continue
+        r = profile_model(model, te, args.frames, args.repeats)
+        print(f"{label:22s}{r['ms']:>9.3f}{r['prof_ms']:>9.3f}{r['op_ms']:>8.3f}{100 * r['arith']:>9.0f}"
+              f"{r['overhead_ms']:>13.3f}")
+        print("    top ops (ms/step): " + ", ".join(f"{'*' if is_arithmetic(k) else ''}{k.removeprefix('aten::')} {t:.3f}"
+                                                     for k, t in r["top"]), flush=True)
+    print("ms/step: unprofiled; prof ms: wall with the profiler on; op ms: summed self CPU time of torch ops; "
+          "arith %: its arithmetic share; overhead ms: Python/dispatch overhead (wall outside any torch op); "
+          "* arithmetic op")
+
+
+if __name__ == "__main__":
+    main()
