@@ -32,8 +32,11 @@ cat, stack, nonzero, unique, masked_select), error checks (``_linalg_check_error
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 import re
 import statistics
+import sys
 import time
 from collections import defaultdict
 
@@ -70,9 +73,23 @@ def is_arithmetic(op: str) -> bool:
     return any(p.search(name) for p in _ARITH)
 
 
+@contextlib.contextmanager
+def _quiet_stderr():
+    """Silence file descriptor 2 (the profiler's native start/stop log lines) for the block."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def _profiled_rollout(step, state, ctrl) -> tuple[float, dict[str, float]]:
     """Wall seconds of ``len(ctrl)`` steps under the profiler and the self CPU seconds of each op."""
-    with profile(activities=[ProfilerActivity.CPU]) as prof:
+    with _quiet_stderr(), profile(activities=[ProfilerActivity.CPU]) as prof:
         t0 = time.perf_counter()
         s = state
         for c in ctrl:
