@@ -198,7 +198,10 @@ class Prediction:
 
     x, v : predicted positions (m) and velocities (m/s) at t+1.
     force : F of Eq. (7); force_noncontact : F~ (Eq. 4); force_contact : F- (Eq. 6).
-    contact_edges : [2, E] batched contact edges used (empty without a contact branch).
+    contact_edges : [2, E] batched contact edges used (empty without a contact branch); on the
+        dense path built from ``contact_mask`` [B, N, N] when first read, so a rollout step (which
+        never reads it) has no data-dependent ``nonzero`` (a host sync, and a graph break for
+        ``torch.compile``).
     """
 
     x: torch.Tensor
@@ -206,7 +209,16 @@ class Prediction:
     force: torch.Tensor
     force_noncontact: torch.Tensor
     force_contact: torch.Tensor
-    contact_edges: torch.Tensor
+    edges: torch.Tensor | None = None
+    contact_mask: torch.Tensor | None = None
+
+    @property
+    def contact_edges(self) -> torch.Tensor:
+        if self.edges is None:
+            b, i, j = self.contact_mask.nonzero(as_tuple=True)
+            n = self.contact_mask.shape[1]
+            self.edges = torch.stack([b * n + i, b * n + j])
+        return self.edges
 
 
 def noise_sigmas(spec: str, d: SplitData) -> tuple:
@@ -473,10 +485,9 @@ class MDGS(Simulator):
             f_c = c.force_scale * self.force_contact(Propagator(dense=gcn_norm_adjacency(a_c, dt)),
                                                      torch.cat([z, z_glob], -1))  # Eq. (6)
             f_c = f_c * a_c.any(-1, keepdim=True)  # zero off contact edges
-            b, i, j = a_c.nonzero(as_tuple=True)
-            ce = torch.stack([b * N + i, b * N + j])
+            ce, mask = None, a_c  # the edge list only if read (Prediction.contact_edges)
         elif self.contact and scene.has_contact:
-            ce = contact_edges(x.detach(), scene.obj, scene.contact_radius, scene.static)
+            ce, mask = contact_edges(x.detach(), scene.obj, scene.contact_radius, scene.static), None
             z_glob = self.global_gather(scene.object_graph.union(ce, B, dev, dt), z)  # Eq. (5)
             con_prop = Propagator(csr=gcn_norm(ce, B * N, dt, dev))
             f_c = c.force_scale * self.force_contact(con_prop, torch.cat([z, z_glob], -1))  # Eq. (6)
@@ -484,7 +495,7 @@ class MDGS(Simulator):
             touched[ce[0]] = True
             f_c = f_c * touched.view(B, N, 1)  # zero off contact edges
         else:
-            ce = torch.zeros(2, 0, dtype=torch.long, device=dev)
+            ce, mask = torch.zeros(2, 0, dtype=torch.long, device=dev), None
             f_c = torch.zeros_like(f_nc)
         f = f_c + f_nc  # Eq. (7)
         if self._drives and ctrl is not None and c.actuation in ("force", "step"):  # motors' known loads join F
@@ -510,7 +521,7 @@ class MDGS(Simulator):
         m = moving.view(1, N, 1)
         x_next = torch.where(m, x_next, x)
         v_next = torch.where(m, v_next, torch.zeros_like(v_next))
-        return Prediction(x_next, v_next, f, f_nc, f_c, ce)
+        return Prediction(x_next, v_next, f, f_nc, f_c, ce, mask)
 
     # --- the Simulator contract ------------------------------------------------------------------
     def step(self, state: State, ctrl: torch.Tensor) -> State:
