@@ -20,7 +20,7 @@ from kane import adversarial, terms
 from kane.element_claims import element_model, margin_expression
 from kane.results import CheckResult, Route, decide
 
-__all__ = ["Claim", "CLAIMS", "CheckSpec", "CHECKS", "run_checks", "claim_ids", "case_names"]
+__all__ = ["Claim", "CLAIMS", "build_claims", "CheckSpec", "CHECKS", "run_checks", "claim_ids", "case_names"]
 
 
 @dataclass(frozen=True)
@@ -111,7 +111,8 @@ _ROT = ("rot", "rotational speeds")
 _POINT4 = (("", "a rotational speed of a generic element of 4 point masses"),)
 
 
-def _claims() -> dict[str, Claim]:
+def build_claims() -> dict[str, Claim]:
+    """Every claim of the paper this toolkit checks, and each corrected statement, by id (:data:`CLAIMS`)."""
     C = [
         Claim("eq3", "Kane's equation", "K_gamma + K*_gamma = 0 for every generalized speed gamma.", "(3)",
               lambda: sp.Eq(sp.Symbol("K_gamma") + sp.Symbol("K^*_gamma"), 0)),
@@ -204,7 +205,8 @@ def _claims() -> dict[str, Claim]:
     return {c.id: c for c in C}
 
 
-CLAIMS: dict[str, Claim] = _claims()
+CLAIMS: dict[str, Claim] = build_claims()
+"""The claim registry: id -> :class:`Claim` (built once by :func:`build_claims`)."""
 
 
 # ---------------------------------------------------------------------------------------
