@@ -232,15 +232,18 @@ def test_a_model_revision_makes_its_cells_stale_and_no_others(monkeypatch):
     assert any(c.model not in changed for c in before)
 
 
-def test_report_keeps_only_the_newest_revision_of_a_cell(tmp_path):
-    """A folder holding a cell's line from before and after its model's revision bump tables the new one."""
+def test_report_keeps_only_the_newest_revision_of_a_row(tmp_path):
+    """A folder holding a row's lines from before and after its model's revision bump tables only the
+    new revision's: the rerun seed 0, not seed 1 of the old revision beside it (a mean over two
+    versions of the model); another row with only old lines keeps them."""
     base = {"kind": "learned", "scene": "s", "model": "mdgs", "label": "mdgs", "settings": {}, "seed": 0,
             "refine": 1, "preset": "tiny", "status": "ok"}
     old = {**base, "cell": "a", "one_step_mse": 1.0}
     new = {**base, "cell": "b", "revision": 1, "one_step_mse": 2.0}
-    other = {**base, "cell": "c", "seed": 1, "one_step_mse": 3.0}  # another cell, revision 0 only: kept
-    (tmp_path / "results.jsonl").write_text("".join(json.dumps(x) + "\n" for x in (old, new, other)))
-    assert sorted(ln["cell"] for ln in read_results(tmp_path)) == ["b", "c"]
+    stale = {**base, "cell": "c", "seed": 1, "one_step_mse": 3.0}  # same row, old revision: dropped
+    other = {**base, "cell": "d", "label": "mdgs hidden 50", "seed": 1}  # another row, old only: kept
+    (tmp_path / "results.jsonl").write_text("".join(json.dumps(x) + "\n" for x in (old, new, stale, other)))
+    assert sorted(ln["cell"] for ln in read_results(tmp_path)) == ["b", "d"]
     # the identity the report uses is every key of a cell's spec but its revision
     from mdgs.study.runner import _SPEC_KEYS
 

@@ -352,10 +352,11 @@ def read_results(out: str | os.PathLike, usable: bool = False) -> list[dict]:
 
 
 def _newest_revisions(lines: list[dict]) -> list[dict]:
-    """Drop the lines of a cell that a newer revision of its model reran (the same cell but for
-    ``revision``, absent for 0): a results folder that holds both never mixes them in a table."""
+    """Keep, for each table row (a cell's identity but for ``seed`` and ``revision``, absent for 0),
+    only the lines of the newest revision present: a row being rerun after a revision bump shows
+    the seeds rerun so far, never a mean over seeds of two versions of the model."""
     def ident(ln):
-        return json.dumps({k: v for k, v in ln.items() if k in _SPEC_KEYS}, sort_keys=True)
+        return json.dumps({k: v for k, v in ln.items() if k in _SPEC_KEYS and k != "seed"}, sort_keys=True)
 
     newest: dict[str, int] = {}
     for ln in lines:
