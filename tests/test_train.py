@@ -158,6 +158,41 @@ def test_a_run_older_than_a_setting_resumes_unless_the_setting_changed_its_behav
                 train(_cfg(data, folder))
 
 
+def test_pushforward_batches_carry_the_true_later_frames_and_train(data, tmp_path):
+    """``pushforward=K``: pairs stop K frames earlier, the batch carries frames t+2..t+K+1 and the
+    controls t+1..t+K of the same trajectories, and a short training run gives a finite loss that
+    includes the step from the model's own state (larger than the one-step loss alone)."""
+    d = load_split(data / "train.h5")
+    T, F = d.x.shape[:2]
+    assert len(d.pairs(0, 2)) == T * (F - 3)
+    idx = d.pairs(0, 2)[[5, 40]]
+    b = batch_of(d, idx, "cpu", 0, 2)
+    for row, (t, f) in enumerate(idx):
+        assert torch.equal(b.x_future[row, 1], torch.from_numpy(d.x[t, f + 3]))
+        assert torch.equal(b.ctrl_future[row, 0], torch.from_numpy(d.ctrl[t, f + 1]))
+    model = MODELS["mdgs"].from_data(d, ModelConfig(pushforward=2, zero_init=False))
+    model.bind(d)
+    assert model.future == 2
+    plain = _same_weights(model, pushforward=0)
+    with torch.no_grad():
+        both = model.losses(b)["mse"]
+        one = plain.losses(batch_of(d, idx, "cpu"))["mse"]
+    assert torch.isfinite(both) and float(both) > float(one) > 0
+    last = train(_cfg(data, tmp_path / "pf", epochs=1, max_steps=3, batch_size=8, valid_max_pairs=16,
+                      model=ModelConfig(pushforward=2)))
+    assert np.isfinite(last["train_mse"])
+
+
+def _same_weights(model, **kw):
+    """The same weights and bound scene under other settings."""
+    import dataclasses
+
+    other = type(model)(dataclasses.replace(model.config, **kw))
+    other.load_state_dict(model.state_dict())
+    other.bind(model._split)
+    return other
+
+
 def test_training_loss_falls_and_outputs(run):
     """Median batch L_mse of the last epoch is well below the first epoch's.
 

@@ -57,10 +57,11 @@ class SplitData:
         """Per-node control features ``[T, F, N, nu]``: ``control[t, f, i, k] = sign[k, i] * ctrl_k``."""
         return np.einsum("tfk,kn->tfnk", self.ctrl, self.control_sign).astype(np.float32)
 
-    def pairs(self, history: int = 0) -> np.ndarray:
-        """All (trajectory, frame) indices with ``history`` past frames and a next frame -> [P, 2]."""
+    def pairs(self, history: int = 0, future: int = 0) -> np.ndarray:
+        """All (trajectory, frame) indices with ``history`` past frames, a next frame and ``future`` more -> [P, 2]."""
         T, F = self.x.shape[:2]
-        return np.stack(np.meshgrid(np.arange(T), np.arange(history, F - 1), indexing="ij"), -1).reshape(-1, 2)
+        return np.stack(np.meshgrid(np.arange(T), np.arange(history, F - 1 - future), indexing="ij"),
+                        -1).reshape(-1, 2)
 
     @property
     def moving(self) -> np.ndarray:

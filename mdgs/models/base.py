@@ -61,6 +61,8 @@ class Batch:
     x, v : [B, N, 3] at t.  ctrl : [B, nu] controls held over t -> t+1.
     x_next, v_next : [B, N, 3] at t+1.
     x_past, v_past : [B, H, N, 3] frames t-H .. t-1 (oldest first), or None when H = 0.
+    x_future, v_future : [B, K, N, 3] frames t+2 .. t+1+K, and ctrl_future [B, K, nu] the controls
+        held over t+1 -> t+2 .. t+K -> t+K+1, for models trained over several steps; None when K = 0.
     """
 
     x: torch.Tensor
@@ -70,6 +72,9 @@ class Batch:
     v_next: torch.Tensor
     x_past: torch.Tensor | None = None
     v_past: torch.Tensor | None = None
+    x_future: torch.Tensor | None = None
+    v_future: torch.Tensor | None = None
+    ctrl_future: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return self.x.shape[0]
@@ -80,15 +85,16 @@ class Batch:
                                                                self.v_next, self.x_past, self.v_past)))
 
 
-def batch_of(d: SplitData, idx: np.ndarray, dev, history: int = 0) -> Batch:
-    """The :class:`Batch` of pairs ``idx`` [B, 2] (trajectory, frame t) of a split, on ``dev``."""
+def batch_of(d: SplitData, idx: np.ndarray, dev, history: int = 0, future: int = 0) -> Batch:
+    """The :class:`Batch` of pairs ``idx`` [B, 2] (trajectory, frame t) of a split, on ``dev``
+    (``future`` frames after t + 1 too: ``idx`` from ``d.pairs(history, future)``)."""
     t, f = idx[:, 0], idx[:, 1]
     g = lambda a, k: torch.from_numpy(a[t, f + k]).to(dev)  # noqa: E731
-    past = None, None
-    if history:
-        ks = np.arange(-history, 0)
-        past = tuple(torch.from_numpy(a[t[:, None], f[:, None] + ks]).to(dev) for a in (d.x, d.v))
-    return Batch(g(d.x, 0), g(d.v, 0), g(d.ctrl, 0), g(d.x, 1), g(d.v, 1), *past)
+    span = lambda a, ks: torch.from_numpy(a[t[:, None], f[:, None] + ks]).to(dev)  # noqa: E731
+    past = (span(d.x, np.arange(-history, 0)), span(d.v, np.arange(-history, 0))) if history else (None, None)
+    ahead = ((span(d.x, np.arange(2, future + 2)), span(d.v, np.arange(2, future + 2)),
+              span(d.ctrl, np.arange(1, future + 1))) if future else (None, None, None))
+    return Batch(g(d.x, 0), g(d.v, 0), g(d.ctrl, 0), g(d.x, 1), g(d.v, 1), *past, *ahead)
 
 
 class Simulator(nn.Module):
@@ -119,6 +125,7 @@ class Simulator(nn.Module):
         super().__init__()
         self.config = config
         self.history = 0
+        self.future = 0  # frames after t + 1 a training pass needs (multi-step training)
         self._split: SplitData | None = None
         # follows .to(device) so that models without parameters know their device too
         self.register_buffer("_device_probe", torch.zeros(0), persistent=False)

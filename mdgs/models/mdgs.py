@@ -116,6 +116,10 @@ class MDGSConfig:
         velocity change over ``dt`` of each motor's joint with its parent held,
         :func:`mdgs.actuation.motor_accelerations`, is added to g's increment, so g learns only
         what the recoil, contacts and coupling add; F as in the paper), "step" (both).
+    pushforward : 0 (the paper: one-step L_mse); K > 0 adds a second L_mse term, on the step
+        taken from the model's own state after K simulated steps (rollout steps, joint projection
+        included, without gradient) against the true frame t + K + 1: the pushforward trick of
+        Brandstetter et al. (2022), so the network also learns from the states its rollouts reach.
     Scales left at 1.0, ``control_dim``, ``contact``, ``dt`` and the sigmas are filled from the
     training split by :meth:`MDGS.resolve_config`.
     """
@@ -139,6 +143,7 @@ class MDGSConfig:
     cst_weight: float = 1.0
     dense_max_nodes: int = 256
     actuation: str = "none"
+    pushforward: int = 0
     noise: str = "auto"
     noise_sigma_x: float = -1.0
     noise_sigma_v: float = -1.0
@@ -173,6 +178,8 @@ class MDGSConfig:
             raise ValueError(f"bound must be 'paper' or 'corrected', got {self.bound!r}")
         if self.integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {', '.join(INTEGRATORS)}, got {self.integrator!r}")
+        if isinstance(self.pushforward, bool) or not isinstance(self.pushforward, int) or self.pushforward < 0:
+            raise ValueError(f"pushforward must be an integer of at least 0, got {self.pushforward!r}")
         if self.actuation not in ACTUATION:
             raise ValueError(f"actuation must be one of {', '.join(ACTUATION)}, got {self.actuation!r}")
 
@@ -324,6 +331,7 @@ class MDGS(Simulator):
         self._sign: torch.Tensor | None = None
         self._joints = JointSet()
         self._drives = DriveSet()
+        self.future = int(config.pushforward)
 
     # --- construction ------------------------------------------------------------------------
     @classmethod
@@ -534,7 +542,19 @@ class MDGS(Simulator):
         scene = self.scene_on(batch.x.device)
         moving = ~scene.static
         p = self(scene, batch.x, batch.v, self.node_controls(batch.ctrl), ctrl=batch.ctrl)
-        l_mse = mse_loss(p.x, p.v, batch.x_next, batch.v_next, moving, *self.scales(scene, batch.x.device))  # Eq. (10)
+        scales = self.scales(scene, batch.x.device)
+        l_mse = mse_loss(p.x, p.v, batch.x_next, batch.v_next, moving, *scales)  # Eq. (10)
+        if cfg.pushforward:  # from the model's own state after K rollout steps (no gradient), one trained step
+            with torch.no_grad():
+                s = self(scene, batch.x, batch.v, self.node_controls(batch.ctrl), simulate=True, ctrl=batch.ctrl)
+                x, v = s.x, s.v
+                for k in range(cfg.pushforward - 1):
+                    c = batch.ctrl_future[:, k]
+                    s = self(scene, x, v, self.node_controls(c), simulate=True, ctrl=c)
+                    x, v = s.x, s.v
+            c = batch.ctrl_future[:, cfg.pushforward - 1]
+            q = self(scene, x, v, self.node_controls(c), ctrl=c)
+            l_mse = l_mse + mse_loss(q.x, q.v, batch.x_future[:, -1], batch.v_future[:, -1], moving, *scales)
         l_cst = constraint_loss(p.force, batch.x, batch.v, p.x, p.v, scene.mass, scene.tau, scene.obj, scene.n_obj,
                                 cfg.dt, moving=moving, bound=cfg.bound, speeds=speeds_of(cfg.variant),
                                 scale=cfg.force_scale * int(moving.sum()))  # Eqs. (13)-(15)

@@ -224,7 +224,7 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
         out.mkdir(parents=True, exist_ok=True)
         atomic_json(resolved, out / "config.json")
     weights = model.loss_weights()
-    pairs_all = tr.pairs(model.history)
+    pairs_all = tr.pairs(model.history, model.future)
     n_steps = max(1, len(pairs_all) // cfg.batch_size)
     if cfg.max_steps:
         n_steps = min(n_steps, cfg.max_steps)
@@ -238,7 +238,8 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
         model.train()
         tot: dict[str, float] = {}
         for s in range(n_steps):
-            batch = batch_of(tr, pairs[s * cfg.batch_size:(s + 1) * cfg.batch_size], dev, model.history)
+            batch = batch_of(tr, pairs[s * cfg.batch_size:(s + 1) * cfg.batch_size], dev, model.history,
+                             model.future)
             batch = model.perturb(batch, gen)  # noise of the global batch: the same for any process count
             if dist_.enabled:
                 batch = batch.rows(dist_.rows(len(batch)))
