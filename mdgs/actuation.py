@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from mdgs.structure import kabsch, segment_mean
+from mdgs.structure import fixes_rotation, kabsch, segment_mean
 
 __all__ = ["Drive", "DriveSet", "drives_of", "actuation_forces", "motor_accelerations"]
 
@@ -134,14 +134,6 @@ class DriveSet:
         return self._cache[key]
 
 
-def _posable(ref: np.ndarray) -> bool:
-    """Whether element centroids ``ref`` [k, 3] fix a rotation: at least 3, not all on a line."""
-    if len(ref) < 3:
-        return False
-    s = np.linalg.svd(ref - ref.mean(0), compute_uv=False)
-    return bool(s[0] > 0 and s[1] > 1e-6 * s[0])
-
-
 def _descends(m, c: int, b: int) -> bool:
     """Whether MuJoCo body ``c`` is ``b`` or one of its descendants."""
     while c > 0:
@@ -175,7 +167,7 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
         mass[k], com[k] = float(m.body_mass[b]), m.body_ipos[b]
         if b != 0 and np.linalg.cond(inertia[k]) < 1e12:
             inv_inertia[k] = np.linalg.inv(inertia[k])
-        posable[k] = _posable(node_centroid[node_body == b])
+        posable[k] = fixes_rotation(node_centroid[node_body == b])
     out = DriveSet(mass=mass, inertia=inertia, inv_inertia=inv_inertia, com=com)
 
     def subtree(b: int) -> tuple[int, ...]:

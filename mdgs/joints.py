@@ -47,7 +47,7 @@ import numpy as np
 import torch
 
 from mdgs.rigid import rotation_matrix, twist
-from mdgs.structure import kabsch
+from mdgs.structure import fixes_rotation, kabsch
 
 __all__ = ["Joint", "JointSet", "joints_of", "project_joints"]
 
@@ -168,14 +168,6 @@ class JointSet:
         return out
 
 
-def _posable(ref: np.ndarray) -> bool:
-    """Whether element centroids ``ref`` [k, 3] fix a rotation: at least 3, not all on a line."""
-    if len(ref) < 3:
-        return False
-    s = np.linalg.svd(ref - ref.mean(0), compute_uv=False)
-    return bool(s[0] > 0 and s[1] > 1e-6 * s[0])
-
-
 def joints_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> JointSet:
     """The joints between the objects of a scene.
 
@@ -211,7 +203,7 @@ def joints_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Joi
         if n_nodes[b] < 2:
             out.skipped.append(f"{name}: fewer than 2 elements")
             continue
-        if p != 0 and not _posable(np.asarray(node_centroid)[node_body == p]):
+        if p != 0 and not fixes_rotation(np.asarray(node_centroid)[node_body == p]):
             out.skipped.append(f"{name}: its parent's elements do not fix its rotation (fewer than 3, or on a line)")
             continue
         q0 = np.zeros(9)

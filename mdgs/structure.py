@@ -12,9 +12,19 @@ the predicted positions; the aligned output is ``R* p_i + t*``. Shapes follow th
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
-__all__ = ["kabsch", "align_to_reference", "segment_mean"]
+__all__ = ["kabsch", "align_to_reference", "segment_mean", "fixes_rotation"]
+
+
+def fixes_rotation(ref: np.ndarray) -> bool:
+    """Whether element centroids ``ref`` [k, 3] fix a rotation (:func:`kabsch` is unique): at least 3,
+    not all on a line (second singular value of the centred points above 1e-6 of the first)."""
+    if len(ref) < 3:
+        return False
+    s = np.linalg.svd(ref - ref.mean(0), compute_uv=False)
+    return bool(s[0] > 0 and s[1] > 1e-6 * s[0])
 
 
 def segment_mean(x: torch.Tensor, seg: torch.Tensor, n_seg: int, weight: torch.Tensor | None = None) -> torch.Tensor:
