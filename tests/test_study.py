@@ -99,6 +99,9 @@ def test_motor_twist_reference_is_one_more_cell_per_scene_and_not_the_ratio_base
     run = {**base, "kind": "learned", "model": "mdgs", "label": "mdgs", "settings": {}, "sets": sets(2.0)}
     from mdgs.study.tables import _ratio_cell
     assert _ratio_cell([run], [motors, twist_], "test", 40) == "0.5"  # 2 / 4, not 2 / 1
+    # a row with no finished cell on a scene yet is not a failed row
+    assert _ratio_cell([], [motors, twist_], "test", 40) == "-"
+    assert _ratio_cell([{**run, "status": "failed"}], [motors, twist_], "test", 40) == "failed"
 
 
 def _accuracy_tables(lines):

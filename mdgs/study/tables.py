@@ -125,7 +125,9 @@ def _ratio_cell(lns, refs, set_name, t):
             ratios.append(None)
             continue
         ratios.append(float(np.mean([a for a, _ in pairs]) / max(np.mean([b for _, b in pairs]), 1e-300)))
-    if not ratios or any(r is None for r in ratios):
+    if not ratios:  # no finished cell of this row on this scene yet
+        return "-"
+    if any(r is None for r in ratios):
         return "failed"
     arr = np.array(ratios)
     return f"{arr.mean():.3g}" + (f" +- {arr.std(ddof=1):.2g}" if len(arr) > 1 else "")
