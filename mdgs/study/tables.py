@@ -288,7 +288,9 @@ def _speed_table(lines) -> Table | None:
     header = ["scene", "model", "parameters", "ms per frame, 1 trajectory", "ms per trajectory-frame, batched",
               "training s (median over seeds)"]
     return Table("Speed", header, rows, "Medians over seeds of the median of 3 timed repeats "
-                 "(mdgs.evaluate.cost.step_cost), this machine, as configured by the study's device.", rows)
+                 "(mdgs.evaluate.cost.step_cost) on the machine that ran each cell, while other work may "
+                 "have shared it (benchmarks/bench_models.py times models side by side on an idle machine).",
+                 rows)
 
 
 def _resolution_table(lines) -> Table | None:
