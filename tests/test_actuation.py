@@ -215,3 +215,40 @@ def test_constant_twist_with_motors_turns_only_the_driven_wheels(splits):
     wheels = [dr.child for dr in ds.drives]
     others = [o for o in range(dw.shape[1]) if o not in wheels]
     assert float(dw[:, wheels].min()) > 1.0 and float(dw[:, others].max()) == 0.0  # the cube keeps its twist
+
+
+def test_constant_twist_with_joints_keeps_the_wheels_on_their_hinges_and_is_the_untrained_mdgs(splits):
+    """The "constant twist + joints" reference: plain constant twist lets a flywheel leave the tumbling
+    cube (each keeps its own twist), the projection holds every hinge anchor together (1e-6 m: float32
+    node positions of a 0.15 m cube), and an untrained MDGS (zero-initialised head, no motor
+    knowledge) simulates the same states (1e-5 m: MDGS steps in float32, the reference in float64)."""
+    from mdgs.evaluate.physics import hinge_anchors, joint_separation
+
+    tr, te = splits["cubli-triple"]
+    b = batch_of(te, te.pairs(0)[:8], "cpu")
+    ct = MODELS["constant-twist"]
+    sims = {j: ct.from_data(te, ct.Config(joints=j)) for j in (False, True)}
+    net = MODELS["mdgs"].from_data(tr, MODELS["mdgs"].Config())
+    sims["mdgs"] = net
+    for s in sims.values():
+        s.bind(te)
+        s.eval()
+    # a tumbling cube: give every body the cube's spin on top of what it has
+    sc = net.scene_on("cpu")
+    w = torch.tensor([0.0, 4.0, 3.0])
+    v0 = b.v + torch.linalg.cross(w.expand_as(b.x), b.x - b.x.mean(1, keepdim=True), dim=-1)
+    traj = {}
+    for name, s in sims.items():
+        st = State(b.x, v0)
+        xs = []
+        with torch.no_grad():
+            for _ in range(20):
+                st = s.step(st, torch.zeros_like(b.ctrl))
+                xs.append(st.x)
+        traj[name] = torch.stack(xs, 1).double().numpy()
+    anchors = hinge_anchors(te.mj_model())
+    sep = {k: float(joint_separation(x, te.static, anchors).max()) for k, x in traj.items()}
+    assert sep[False] > 1e-3, sep
+    assert sep[True] < 1e-6 and sep["mdgs"] < 1e-5, sep
+    moving = ~sc.static.numpy()
+    np.testing.assert_allclose(traj["mdgs"][:, :, moving], traj[True][:, :, moving], atol=1e-5)

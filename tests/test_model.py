@@ -254,3 +254,43 @@ def test_dense_contact_path_gives_the_sparse_paths_numbers():
     for p, q in ((a.force_contact, b.force_contact), (a.x, b.x), (a.v, b.v)):
         torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-6)
     assert a.force_contact.abs().sum() > 0
+
+
+def test_self_weighted_gcn_tells_a_node_from_its_neighbourhood():
+    """On a complete graph (every node's neighbourhood is the whole graph) the paper's GCN gives every
+    node the same output whatever their features; a separate weight on each node's own features
+    (``self_weight``) does not. Both zero their output with ``zero_output``."""
+    from mdgs.graphs import Propagator
+    from mdgs.models.layers import GCN
+
+    torch.manual_seed(0)
+    prop = Propagator(dense=torch.full((5, 5), 1 / 5))  # A_hat of K5 with self-loops
+    h = torch.randn(2, 5, 4)
+    plain, own = GCN(4, 16, 3, 3), GCN(4, 16, 3, 3, self_weight=True)
+    out = plain(prop, h)
+    assert torch.allclose(out, out[:, :1].expand_as(out), atol=1e-6)
+    out = own(prop, h)
+    assert float((out - out[:, :1]).abs().max()) > 1e-3
+    for g in (plain, own):
+        g.zero_output()
+        assert float(g(prop, h).abs().max()) == 0.0
+
+
+@pytest.mark.parametrize("features", ["paper", "local"])
+def test_local_features_make_a_step_independent_of_where_the_scene_stands(features):
+    """``features="local"``: moving every body horizontally moves the predicted step with it (float32
+    round-off, 1e-5 m on 0.2 m cubes shifted by 3 m); the paper's absolute positions do not."""
+    torch.manual_seed(0)
+    static, pos = _cubes(gap=0.05)
+    sc = SceneGraph.from_static(static, has_contact=True)
+    model = MDGS(ModelConfig(**SMALL, features=features, zero_init=False, dt=0.01))
+    x = pos.expand(2, -1, -1).contiguous()
+    v = 0.3 * torch.randn_like(x)
+    shift = torch.tensor([3.0, -2.0, 0.0])
+    with torch.no_grad():
+        a, b = model(sc, x, v), model(sc, x + shift, v)
+    moved = float((b.x - shift - a.x).abs().max())
+    if features == "local":
+        assert moved < 1e-5 and torch.allclose(a.v, b.v, atol=1e-5)
+    else:
+        assert moved > 1e-4

@@ -104,6 +104,24 @@ def test_motor_twist_reference_is_one_more_cell_per_scene_and_not_the_ratio_base
     assert _ratio_cell([{**run, "status": "failed"}], [motors, twist_], "test", 40) == "failed"
 
 
+def test_joint_twist_references_add_the_projected_rows_and_leave_the_ratio_base_plain(tmp_path):
+    plain = load_study(_write(tmp_path, GOOD + "[references]\nmotors = true\n"))
+    study = load_study(_write(tmp_path, GOOD + "[references]\nmotors = true\njoints = true\n"))
+    extra = [c for c in cells_of(study) if c.key(study) not in {k.key(plain) for k in cells_of(plain)}]
+    assert [(c.label, dict(c.settings)) for c in extra] == [
+        ("constant twist + joints", {"joints": True}),
+        ("constant twist + motors + joints", {"joints": True, "motors": True})]
+    base = {"kind": "reference", "model": "constant-twist", "scene": "s", "seed": 0, "status": "ok", "refine": 1}
+    sets = lambda v: {"test": {"pos_mse_t40": [v, v], "pos_mse_t110": [v, v]}}  # noqa: E731
+    joints = {**base, "label": "constant twist + joints", "settings": {"joints": True}, "sets": sets(1.0)}
+    twist_ = {**base, "label": "constant twist", "settings": {}, "sets": sets(4.0)}
+    run = {**base, "kind": "learned", "model": "mdgs", "label": "mdgs", "settings": {}, "sets": sets(2.0)}
+    from mdgs.study.tables import _ratio_cell
+    assert _ratio_cell([run], [joints, twist_], "test", 40) == "0.5"
+    with pytest.raises(StudyError, match="joints"):
+        load_study(_write(tmp_path, GOOD + "[references]\njoints = 1\n"))
+
+
 def _accuracy_tables(lines):
     return [t.markdown() for t in build_tables(lines) if t.title not in ("Speed", "Resolution")]
 

@@ -53,8 +53,7 @@ torch.set_num_threads(1)
 
 z = copy.deepcopy(model)
 if hasattr(z, "state"):
-    torch.nn.init.zeros_(z.state.lins[-1].weight)
-    torch.nn.init.zeros_(z.state.lins[-1].bias)
+    z.state.zero_output()
     one_zero = one_step_error(z, test, "cpu")
 else:
     one_zero = None

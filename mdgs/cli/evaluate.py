@@ -20,11 +20,14 @@ def _parse_reference(text: str) -> tuple[str, dict]:
         if k < 1:
             fail(f"--reference {text}: the timestep factor must be at least 1")
         return name, {"dt_factor": k}
-    if name == "constant-twist" and arg == "motors":
-        return name, {"motors": True}
+    if name == "constant-twist" and arg:
+        parts = arg.split("+")
+        if not set(parts) <= {"motors", "joints"} or len(set(parts)) != len(parts):
+            fail(f"--reference {text}: constant-twist takes motors, joints or motors+joints "
+                 f"(e.g. constant-twist:motors+joints)")
+        return name, {k: True for k in parts}
     if arg:
-        fail(f"--reference {text}: {name} takes no setting" + (" but motors (constant-twist:motors)"
-                                                                if name == "constant-twist" else ""))
+        fail(f"--reference {text}: {name} takes no setting")
     return name, {}
 
 
@@ -45,8 +48,10 @@ def evaluate_cmd(
     traj: int = typer.Option(0, "--traj", help="Test trajectory drawn in the trajectory plot."),
     reference: list[str] = typer.Option(None, "--reference", metavar="NAME[:K]",
                                         help="Also roll out a non-learned reference, e.g. mujoco:20 (MuJoCo at 20x "
-                                             "the data's timestep) or constant-twist:motors (constant twist plus the "
-                                             "motors' known loads on the bodies they drive); repeatable. constant-twist "
+                                             "the data's timestep), constant-twist:motors (constant twist plus the "
+                                             "motors' known loads on the bodies they drive), constant-twist:joints "
+                                             "(projected onto the joints, as MDGS) or constant-twist:motors+joints; "
+                                             "repeatable. constant-twist "
                                              "is always included."),
     device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),
     list_models: bool = typer.Option(False, "--list-models", help="List the models of the registry and exit."),

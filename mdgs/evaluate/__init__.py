@@ -74,8 +74,8 @@ def reference_label(model: Simulator) -> str:
     """How a reference is named in reports and plots: ``constant twist``, ``mujoco dt x20``, ..."""
     if model.name == "mujoco":
         return f"mujoco dt x{model.config.dt_factor}"
-    if model.name == "constant-twist" and model.config.motors:
-        return "constant twist + motors"
+    if model.name == "constant-twist":
+        return "constant twist" + "".join(f" + {k}" for k in ("motors", "joints") if getattr(model.config, k))
     return model.name.replace("-", " ")
 
 

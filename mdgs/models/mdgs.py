@@ -60,6 +60,8 @@ CUBLI_NOISE = 4e-4
 OBJECT_SCALE_FLOOR = 0.05
 #: What MDGS knows of a scene's motors (``actuation``, :mod:`mdgs.actuation`).
 ACTUATION = ("none", "force", "step", "prior")
+#: Node features z_i (``features``): the paper's [x || v || k], or "local" (module docstring).
+FEATURES = ("paper", "local")
 #: Training noise of Appendix B.2 for the other scenes, as a fraction of the per-step increment std.
 INCREMENT_NOISE = 0.06
 
@@ -120,6 +122,12 @@ class MDGSConfig:
         taken from the model's own state after K simulated steps (rollout steps, joint projection
         included, without gradient) against the true frame t + K + 1: the pushforward trick of
         Brandstetter et al. (2022), so the network also learns from the states its rollouts reach.
+    features : the node features z_i: "paper" ([x || v || k], Section 3.1) or "local" (no absolute
+        horizontal position: ``[x_i - c || x_i,z || v_i || w || k]`` with ``c``, ``w`` the centroid and
+        angular velocity of the node's object, so a model that has seen a motion in one place knows it
+        in another, and a body's spin is an input rather than a pattern across its nodes).
+    self_weight : give every GCN layer a separate weight on each node's own features
+        (:class:`mdgs.models.layers.GCN`); the paper's GCN only averages over a node's neighbourhood.
     Scales left at 1.0, ``control_dim``, ``contact``, ``dt`` and the sigmas are filled from the
     training split by :meth:`MDGS.resolve_config`.
     """
@@ -144,6 +152,8 @@ class MDGSConfig:
     dense_max_nodes: int = 256
     actuation: str = "none"
     pushforward: int = 0
+    features: str = "paper"
+    self_weight: bool = False
     noise: str = "auto"
     noise_sigma_x: float = -1.0
     noise_sigma_v: float = -1.0
@@ -182,6 +192,8 @@ class MDGSConfig:
             raise ValueError(f"pushforward must be an integer of at least 0, got {self.pushforward!r}")
         if self.actuation not in ACTUATION:
             raise ValueError(f"actuation must be one of {', '.join(ACTUATION)}, got {self.actuation!r}")
+        if self.features not in FEATURES:
+            raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -312,17 +324,17 @@ class MDGS(Simulator):
     def __init__(self, config: MDGSConfig = MDGSConfig()):
         super().__init__(config)
         c = config
-        d_z = 3 + 3 + N_PROPERTIES + c.control_dim
+        d_z = (3 if c.features == "paper" else 7) + 3 + N_PROPERTIES + c.control_dim
         self.d_z = d_z
         self.contact = c.contact
-        self.force_noncontact = GCN(d_z, c.hidden, 3, c.layers)  # g^F~
+        sw = c.self_weight
+        self.force_noncontact = GCN(d_z, c.hidden, 3, c.layers, sw)  # g^F~
         if c.contact:
-            self.global_gather = GCN(d_z, c.hidden, c.global_dim, c.layers)  # g^Z-
-            self.force_contact = GCN(d_z + c.global_dim, c.hidden, 3, c.layers)  # g^F-
-        self.state = GCN(d_z + 3, c.hidden, 6, c.layers)  # g
+            self.global_gather = GCN(d_z, c.hidden, c.global_dim, c.layers, sw)  # g^Z-
+            self.force_contact = GCN(d_z + c.global_dim, c.hidden, 3, c.layers, sw)  # g^F-
+        self.state = GCN(d_z + 3, c.hidden, 6, c.layers, sw)  # g
         if c.zero_init:  # start as the constant-twist reference: g outputs 0 until trained
-            torch.nn.init.zeros_(self.state.lins[-1].weight)
-            torch.nn.init.zeros_(self.state.lins[-1].bias)
+            self.state.zero_output()
         # input normalisation of z (set from training data by fit / set_normalization)
         self.register_buffer("z_mean", torch.zeros(d_z))
         self.register_buffer("z_std", torch.ones(d_z))
@@ -461,7 +473,12 @@ class MDGS(Simulator):
         """Raw ``z = [x || v || k]`` -> [B, N, d_z]; ``control`` [B, N, control_dim] joins ``k``."""
         B, N, _ = x.shape
         k = scene.properties().to(x.device, x.dtype).expand(B, N, -1)
-        parts = [x, v, k]
+        if self.config.features == "local":  # no absolute horizontal position; the object's spin made explicit
+            seg = scene.obj.to(x.device)
+            tw = twist(x, v, seg, scene.n_obj, scene.mass.to(x.device))
+            parts = [x - tw.c[:, seg].to(x.dtype), x[..., 2:], v, tw.omega[:, seg].to(x.dtype), k]
+        else:
+            parts = [x, v, k]
         if self.config.control_dim:
             if control is None:
                 raise ValueError(f"this model expects control inputs of width {self.config.control_dim}")

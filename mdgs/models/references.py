@@ -7,7 +7,11 @@ Both meet the :class:`~mdgs.models.base.Simulator` contract and have nothing to 
   simulator that does not beat it has learned no dynamics (gravity, contact, actuation).
   With ``motors=True`` ("constant twist + motors") the bodies that motors drive also take the
   velocity change of each motor's joint with its parent held (:func:`mdgs.actuation.motor_accelerations`):
-  the physics of the controls a learned model is handed.
+  the physics of the controls a learned model is handed. With ``joints=True`` ("constant twist +
+  joints") every step is projected onto the scene's MJCF joints (:func:`mdgs.joints.project_joints`,
+  the same projection MDGS applies to its simulated steps), so hinged bodies stay hinged: it is
+  what an MDGS whose network outputs zero simulates, and the reference that shows what training
+  adds to MDGS.
 - :class:`MuJoCoReference` (``mujoco``): the physics engine that made the data, replaying
   each test trajectory from its recorded initial state under the recorded controls, with the
   timestep ``dt_factor`` times the dataset's (``substeps / dt_factor`` steps per frame). At
@@ -26,6 +30,7 @@ import torch
 from mdgs.actuation import DriveSet, drives_of, motor_accelerations
 from mdgs.data.split import SplitData
 from mdgs.graphs import SceneGraph
+from mdgs.joints import JointSet, joints_of, project_joints
 from mdgs.models.base import ModelError, Simulator, State
 from mdgs.rigid import advance, project, twist
 
@@ -37,14 +42,18 @@ class ConstantTwistConfig:
     """Settings of the constant-twist reference.
 
     motors : add each motor's joint response with its parent held
-        (:func:`mdgs.actuation.motor_accelerations`); the label becomes "constant twist + motors".
+        (:func:`mdgs.actuation.motor_accelerations`); the label gains "+ motors".
+    joints : project every step onto the scene's joints (:func:`mdgs.joints.project_joints`, as
+        MDGS's ``joints``); the label gains "+ joints".
     """
 
     motors: bool = False
+    joints: bool = False
 
     def __post_init__(self):
-        if not isinstance(self.motors, bool):
-            raise ValueError(f"motors must be true or false, got {self.motors!r}")
+        for k in ("motors", "joints"):
+            if not isinstance(getattr(self, k), bool):
+                raise ValueError(f"{k} must be true or false, got {getattr(self, k)!r}")
 
 
 class ConstantTwist(Simulator):
@@ -62,6 +71,8 @@ class ConstantTwist(Simulator):
         self._dt = float(split.frame_dt)
         self._drives = (drives_of(split.mj_model(), split.static["node_body"], split.static["node_centroid"])
                         if self.config.motors else DriveSet())
+        self._joints = (joints_of(split.mj_model(), split.static["node_body"], split.static["node_centroid"])
+                        if self.config.joints else JointSet())
 
     def step(self, state: State, ctrl: torch.Tensor) -> State:
         x, v = state.x, state.v
@@ -74,6 +85,8 @@ class ConstantTwist(Simulator):
             dvc, dw = project(acc * self._dt, x, tw, seg, sc.n_obj, mass)
             vc, w = vc + dvc, w + dw
         xn, vn = advance(x, tw, vc, w, self._dt, seg)
+        if self._joints:  # hinged bodies stay hinged (the projection of MDGS's simulated steps)
+            xn, vn = project_joints(xn, vn, self._joints, sc.ref_shape.to(x.device), seg, sc.n_obj, mass)
         m = (~sc.static).to(x.device).view(1, -1, 1)
         return State(torch.where(m, xn, x), torch.where(m, vn, torch.zeros_like(vn)))
 

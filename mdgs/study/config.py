@@ -32,6 +32,8 @@ A study file has these tables (every key optional unless marked; defaults in the
     [references]
     mujoco_dt_factors = [1, 2, 5, 10, 20]
     motors = true                       # also "constant twist + motors" (default false)
+    joints = true                       # also "constant twist + joints" (and "+ motors + joints" with motors;
+                                        # default false): what an MDGS whose network outputs zero simulates
 
     [resolution]                        # MDGS error and cost against the element resolution
     model = "mdgs"
@@ -113,6 +115,7 @@ class StudyConfig:
     models: tuple[ModelEntry, ...] = ()
     mujoco_dt_factors: tuple[int, ...] = (1, 2, 5, 10, 20)
     motor_twist: bool = False
+    joint_twist: bool = False
     resolution_model: str = "mdgs"
     resolution_refine: tuple[int, ...] = ()
     resolution_seeds: tuple[int, ...] = (0,)
@@ -259,9 +262,10 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
         raise StudyError(f"{f}: two [[models]] share a label; give each a distinct label")
 
     rf = _take(doc, "references", dict, f, {})
-    _unknown(rf, {"mujoco_dt_factors", "motors"}, f"{f} [references]")
+    _unknown(rf, {"mujoco_dt_factors", "motors", "joints"}, f"{f} [references]")
     dts = _ints(rf, "mujoco_dt_factors", f"{f} [references]", (1, 2, 5, 10, 20), lo=1)
     motors = _take(rf, "motors", bool, f"{f} [references]", False)
+    joints = _take(rf, "joints", bool, f"{f} [references]", False)
 
     rs = _take(doc, "resolution", dict, f, {})
     where = f"{f} [resolution]"
@@ -273,5 +277,6 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
     return StudyConfig(name=name, path=str(path.resolve()), preset=preset, seeds=seeds, device=device,
                        long_frames=long_frames, long_trajectories=long_traj, failure_factor=failure,
                        sensitivity=sens, sensitivity_seeds=sens_seeds, budget=budget, scenes=tuple(scenes),
-                       models=tuple(models), mujoco_dt_factors=dts, motor_twist=motors, resolution_model=rmodel,
+                       models=tuple(models), mujoco_dt_factors=dts, motor_twist=motors, joint_twist=joints,
+                       resolution_model=rmodel,
                        resolution_refine=refine, resolution_seeds=_ints(rs, "seeds", where, (0,)))

@@ -94,6 +94,11 @@ def cells_of(study: StudyConfig) -> list[Cell]:
         out.append(Cell("reference", sc, "constant-twist", "constant twist"))
         if study.motor_twist:
             out.append(Cell("reference", sc, "constant-twist", "constant twist + motors", (("motors", True),)))
+        if study.joint_twist:
+            out.append(Cell("reference", sc, "constant-twist", "constant twist + joints", (("joints", True),)))
+            if study.motor_twist:
+                out.append(Cell("reference", sc, "constant-twist", "constant twist + motors + joints",
+                                (("joints", True), ("motors", True))))
         for k in study.mujoco_dt_factors:
             out.append(Cell("reference", sc, "mujoco", f"mujoco dt x{k}", (("dt_factor", k),)))
         if study.sensitivity > 0:

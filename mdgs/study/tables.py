@@ -107,7 +107,7 @@ def _cell(lns: list[dict], set_name: str, t: int):
 
 def _ratio_cell(lns, refs, set_name, t):
     """Mean +- std over seeds of run mean / constant-twist mean over the run's surviving trajectories."""
-    ref = next((r for r in refs if r["model"] == "constant-twist" and not r.get("settings", {}).get("motors")), None)
+    ref = next((r for r in refs if r["model"] == "constant-twist" and not r.get("settings")), None)  # the plain one
     if ref is None or set_name not in ref["sets"]:
         return None
     rv = ref["sets"][set_name][f"pos_mse_t{t}"]
