@@ -46,6 +46,7 @@ name = "mdgs"
     (GOOD.replace('name = "cubli-single"', 'name = "moon-base"'), "scene 'moon-base' is unknown"),
     (GOOD.replace("seeds = [0]", "seeds = [0]\nsedes = [1]"), "unknown key 'sedes'"),
     (GOOD.replace("seeds = [0]", 'seeds = "0"'), "should be of type list"),
+    (GOOD.replace("seeds = [0]", "seeds = [0]\ntrajectories = 2"), "trajectories must be 0"),
     (GOOD.replace('[[models]]\nname = "mdgs"', '[[models]]\nname = "mdgs"\nset = { hiden = 3 }'), "no setting 'hiden'"),
     (GOOD.replace('[[models]]\nname = "mdgs"', '[[models]]\nname = "mujoco"'), "is a reference"),
     (GOOD.replace('preset = "tiny"', 'preset = "huge"'), "preset 'huge' is unknown"),
@@ -120,6 +121,21 @@ def test_joint_twist_references_add_the_projected_rows_and_leave_the_ratio_base_
     assert _ratio_cell([run], [joints, twist_], "test", 40) == "0.5"
     with pytest.raises(StudyError, match="joints"):
         load_study(_write(tmp_path, GOOD + "[references]\njoints = 1\n"))
+
+
+def test_a_trajectory_count_makes_its_own_data_and_cells_and_leaves_the_presets_keys(tmp_path):
+    """``trajectories = N``: every cell key changes (other data), the data has N trajectories in the
+    paper's proportions, and a study that does not set it keeps the keys it had before it existed."""
+    from mdgs.data.split import load_split
+    from mdgs.study.runner import _dataset
+
+    plain = load_study(_write(tmp_path, GOOD))
+    more = load_study(_write(tmp_path, GOOD.replace("seeds = [0]", "seeds = [0]\ntrajectories = 5")))
+    assert not {c.key(plain) for c in cells_of(plain)} & {c.key(more) for c in cells_of(more)}
+    assert all("trajectories" not in c.spec(plain) for c in cells_of(plain))
+    folder = _dataset(more, tmp_path / "out", more.scenes[0])
+    counts = [load_split(folder / f"{s}.h5").x.shape[0] for s in ("train", "valid", "test")]
+    assert sum(counts) == 5 and counts[0] >= counts[1] >= 1 and counts[2] >= 1
 
 
 def _accuracy_tables(lines):
@@ -268,5 +284,7 @@ def test_report_keeps_only_the_newest_revision_of_a_row(tmp_path):
     # the identity the report uses is every key of a cell's spec but its revision
     from mdgs.study.runner import _SPEC_KEYS
 
-    study = load_study(TINY)
+    import dataclasses
+
+    study = dataclasses.replace(load_study(TINY), trajectories=12)  # every optional key present
     assert {k for c in cells_of(study) for k in c.spec(study)} - {"revision"} == set(_SPEC_KEYS)

@@ -5,6 +5,8 @@ A study file has these tables (every key optional unless marked; defaults in the
     [study]
     name = "small"                      # required; an output folder holds one study
     preset = "small"                    # data preset of every scene (tiny, small, paper)
+    trajectories = 440                  # total trajectories instead of the preset's, in the paper's
+                                        # proportions (400/20/20); default 0: the preset's
     seeds = [0, 1, 2]
     device = "cpu"
     long_frames = 1100                  # stability test: frames of the long test trajectories (0: none)
@@ -103,6 +105,7 @@ class StudyConfig:
     name: str
     path: str
     preset: str = "small"
+    trajectories: int = 0
     seeds: tuple[int, ...] = (0, 1, 2)
     device: str = "cpu"
     long_frames: int = 1100
@@ -174,14 +177,17 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
     _unknown(doc, _TOP, f)
     st = _take(doc, "study", dict, f, required=True)
     where = f"{f} [study]"
-    _unknown(st, {"name", "preset", "seeds", "device", "long_frames", "long_trajectories", "failure_factor",
-                  "sensitivity", "sensitivity_seeds"}, where)
+    _unknown(st, {"name", "preset", "trajectories", "seeds", "device", "long_frames", "long_trajectories",
+                  "failure_factor", "sensitivity", "sensitivity_seeds"}, where)
     name = _take(st, "name", str, where, required=True)
     if not name.strip() or any(c in name for c in "/\\"):
         raise StudyError(f"{where}: name {name!r} must be a non-empty word without slashes")
     preset = _take(st, "preset", str, where, "small")
     if preset not in PRESETS:
         raise StudyError(f"{where}: preset {preset!r} is unknown; choose one of {', '.join(PRESETS)}")
+    trajectories = _take(st, "trajectories", int, where, 0)
+    if trajectories and trajectories < 3:
+        raise StudyError(f"{where}: trajectories must be 0 (the preset's count) or at least 3 (one per split)")
     seeds = _ints(st, "seeds", where, (0, 1, 2))
     if not seeds:
         raise StudyError(f"{where}: seeds is empty; give at least one seed")
@@ -274,7 +280,7 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
     if rs and rmodel not in MODELS:
         raise StudyError(f"{where}: model {rmodel!r} is unknown")
     refine = _ints(rs, "refine", where, (), lo=1)
-    return StudyConfig(name=name, path=str(path.resolve()), preset=preset, seeds=seeds, device=device,
+    return StudyConfig(name=name, path=str(path.resolve()), preset=preset, trajectories=trajectories, seeds=seeds, device=device,
                        long_frames=long_frames, long_trajectories=long_traj, failure_factor=failure,
                        sensitivity=sens, sensitivity_seeds=sens_seeds, budget=budget, scenes=tuple(scenes),
                        models=tuple(models), mujoco_dt_factors=dts, motor_twist=motors, joint_twist=joints,

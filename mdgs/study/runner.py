@@ -75,6 +75,8 @@ class Cell:
              "settings": dict(self.settings), "seed": self.seed, "refine": self.refine,
              "preset": study.preset, "long_frames": study.long_frames,
              "long_trajectories": study.long_trajectories, "failure_factor": study.failure_factor}
+        if study.trajectories:  # absent at the preset's count: keys of cells run before the setting existed hold
+            d["trajectories"] = study.trajectories
         if MODELS[self.model].learned:
             d["budget"] = asdict(study.budget)
         if MODELS[self.model].revision:  # absent for revision 0: keys of cells run before revisions existed hold
@@ -124,13 +126,13 @@ def _dataset(study: StudyConfig, out: Path, sc: SceneEntry, refine: int = 1, lon
     """Generate (or find) a dataset of the study; returns its folder."""
     name = variant or sc.name
     folder = out / "data" / (name + (f"-r{refine}" if refine != 1 else "") + ("-long" if long else ""))
-    kw = {}
+    kw = {"n_traj": study.trajectories} if study.trajectories else {}
     if long:
         kw = {"n_frames": study.long_frames, "splits": ("test",), "n_traj": study.long_trajectories}
     cfg = GenerateConfig(scene="" if sc.mjcf else name, out=str(folder), preset=study.preset, mjcf=sc.mjcf,
                          substeps=sc.substeps, partition=PartitionParams(refine=refine), **kw)
     if variant:
-        cfg = GenerateConfig(scene=variant, out=str(folder), preset=study.preset)
+        cfg = GenerateConfig(scene=variant, out=str(folder), preset=study.preset, n_traj=study.trajectories or None)
     res = generate(cfg)
     if not res.merged:
         raise StudyError(f"dataset {folder} is incomplete (another process is generating it?); rerun the study")
@@ -370,8 +372,8 @@ def _newest_revisions(lines: list[dict]) -> list[dict]:
 
 
 #: The keys of :meth:`Cell.spec` but ``revision``: what makes two results lines the same cell.
-_SPEC_KEYS = ("kind", "scene", "model", "label", "settings", "seed", "refine", "preset", "long_frames",
-              "long_trajectories", "failure_factor", "budget")
+_SPEC_KEYS = ("kind", "scene", "model", "label", "settings", "seed", "refine", "preset", "trajectories",
+              "long_frames", "long_trajectories", "failure_factor", "budget")
 
 
 def _repair(path: Path) -> None:
