@@ -282,9 +282,9 @@ def test_report_keeps_only_the_newest_revision_of_a_row(tmp_path):
     (tmp_path / "results.jsonl").write_text("".join(json.dumps(x) + "\n" for x in (old, new, stale, other)))
     assert sorted(ln["cell"] for ln in read_results(tmp_path)) == ["b", "d"]
     # the identity the report uses is every key of a cell's spec but its revision
-    from mdgs.study.runner import _SPEC_KEYS
-
     import dataclasses
+
+    from mdgs.study.runner import _SPEC_KEYS
 
     study = dataclasses.replace(load_study(TINY), trajectories=12)  # every optional key present
     assert {k for c in cells_of(study) for k in c.spec(study)} - {"revision"} == set(_SPEC_KEYS)
