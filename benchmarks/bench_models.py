@@ -1,6 +1,7 @@
 """Every model of the registry side by side on one scene: size, training step, rollout step, FLOP rate.
 
     python benchmarks/bench_models.py [--scene cubli-triple] [--models mdgs gns ...] [--batches 1 16 256]
+                                      [--widths 100 50]
 
 One run, this machine, medians over repeats; printed per model:
 
@@ -56,15 +57,18 @@ def tiny_splits(scene: str) -> tuple[SplitData, SplitData]:
         return load_split(Path(tmp) / "train.h5"), load_split(Path(tmp) / "test.h5")
 
 
-def registry_models(names: list[str], tr: SplitData) -> Iterator[tuple[str, Simulator | str]]:
+def registry_models(names: list[str], tr: SplitData, widths: tuple[int, ...] = ()) -> Iterator[tuple[str, Simulator | str]]:
     """``(label, model)`` for each registry name, built from ``tr`` with default settings (untrained);
-    MuJoCo twice: at the data's timestep and at one step per frame. A model that refuses the scene
-    gives its message (a str) in place of the model, so a table can say so and go on."""
+    MuJoCo twice: at the data's timestep and at one step per frame; MDGS also at each of ``widths``
+    (GCN hidden and global width). A model that refuses the scene gives its message (a str) in place
+    of the model, so a table can say so and go on."""
     for name in names:
         cls = MODELS[name]
         cfgs = [("", {})] if name != "mujoco" else [(" dt x1", {"dt_factor": 1}),
                                                     (f" dt x{int(tr.attrs['substeps'])}",
                                                      {"dt_factor": int(tr.attrs["substeps"])})]
+        if name == "mdgs":
+            cfgs += [(f" hidden {w}", {"hidden": w, "global_dim": w}) for w in widths]
         for suffix, kw in cfgs:
             try:
                 yield name + suffix, cls.from_data(tr, cls.Config(**kw))
@@ -86,6 +90,8 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=10, help="timed frames per rollout measurement")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--widths", nargs="*", type=int, default=[],
+                    help="also MDGS at these GCN widths (hidden = global_dim; the default is 200)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     names = args.models or list(MODELS)
@@ -96,7 +102,7 @@ def main() -> None:
     head = f"{'model':22s}{'params':>10s}{'train ms':>10s}" + "".join(f"{'ms/tf b' + str(b):>12s}" for b in args.batches)
     print(head + f"{'% matmul':>10s}")
     rows = []
-    for label, model in registry_models(names, tr):
+    for label, model in registry_models(names, tr, tuple(args.widths)):
         if isinstance(model, str):
             print(f"{label:22s} refused: {model}")
             continue
