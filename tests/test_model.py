@@ -231,6 +231,8 @@ def test_config_rejects_unknown_variant():
     ({"force_scale": float("inf")}, "force_scale must be a positive number"),
     ({"lam": 0.0}, "lam must be a positive number or None"),
     ({"dt": -0.01}, "dt must be a number of at least 0"),
+    ({"features": "body"}, "features must be one of paper, local"),
+    ({"self_weight": "yes"}, "self_weight must be true or false"),
 ])
 def test_config_rejects_out_of_range_settings_by_name(setting, phrase):
     with pytest.raises(ValueError, match=phrase):

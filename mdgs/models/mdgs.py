@@ -194,6 +194,8 @@ class MDGSConfig:
             raise ValueError(f"actuation must be one of {', '.join(ACTUATION)}, got {self.actuation!r}")
         if self.features not in FEATURES:
             raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
+        if not isinstance(self.self_weight, bool):
+            raise ValueError(f"self_weight must be true or false, got {self.self_weight!r}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -470,7 +472,8 @@ class MDGS(Simulator):
     # --- the network ---------------------------------------------------------------------------
     def node_features(self, scene: SceneGraph, x: torch.Tensor, v: torch.Tensor,
                       control: torch.Tensor | None = None) -> torch.Tensor:
-        """Raw ``z = [x || v || k]`` -> [B, N, d_z]; ``control`` [B, N, control_dim] joins ``k``."""
+        """Raw ``z = [x || v || k]`` (``features="local"``: ``[x - c || x_z || v || w || k]``) -> [B, N, d_z];
+        ``control`` [B, N, control_dim] joins ``k``."""
         B, N, _ = x.shape
         k = scene.properties().to(x.device, x.dtype).expand(B, N, -1)
         if self.config.features == "local":  # no absolute horizontal position; the object's spin made explicit
