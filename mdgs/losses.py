@@ -44,6 +44,26 @@ def mse_loss(x: torch.Tensor, v: torch.Tensor, x_true: torch.Tensor, v_true: tor
     return e.mean()
 
 
+def pair_mse(x: torch.Tensor, v: torch.Tensor, x_true: torch.Tensor, v_true: torch.Tensor,
+             moving: torch.Tensor | None = None, dx_scale: float = 1.0, dv_scale: float = 1.0) -> torch.Tensor:
+    """Eq. (10) for each graph of the batch separately: [B]; its mean is :func:`mse_loss`."""
+    e = torch.cat([((x - x_true) / dx_scale) ** 2, ((v - v_true) / dv_scale) ** 2], -1)  # [B, N, 6]
+    if moving is not None:
+        e = e[:, moving]
+    return e.mean((1, 2))
+
+
+def huber_loss(x: torch.Tensor, v: torch.Tensor, x_true: torch.Tensor, v_true: torch.Tensor,
+               moving: torch.Tensor | None = None, dx_scale: float = 1.0, dv_scale: float = 1.0,
+               delta: float = 1.0) -> torch.Tensor:
+    """Eq. (10) with the square replaced by the Huber function (quadratic up to ``delta``, in the
+    scaled units, linear beyond): a rare large residual pulls no harder than ``delta`` per component."""
+    d = torch.cat([(x - x_true) / dx_scale, (v - v_true) / dv_scale], -1)
+    if moving is not None:
+        d = d[:, moving]
+    return torch.nn.functional.huber_loss(d, torch.zeros_like(d), delta=delta)
+
+
 def angular_rate(x: torch.Tensor, v: torch.Tensor, seg: torch.Tensor, n_seg: int, mass: torch.Tensor,
                  tau: torch.Tensor) -> torch.Tensor:
     """Angular speed of each node's object, Appendix B.1.2: ``omega = |v_i - v_0| / |x_i - x_0|``, max over the object.

@@ -252,3 +252,35 @@ def test_constant_twist_with_joints_keeps_the_wheels_on_their_hinges_and_is_the_
     assert sep[True] < 1e-6 and sep["mdgs"] < 1e-5, sep
     moving = ~sc.static.numpy()
     np.testing.assert_allclose(traj["mdgs"][:, :, moving], traj[True][:, :, moving], atol=1e-5)
+
+
+def test_relative_loss_of_the_untrained_prior_model_is_constant_twist_plus_motors_against_itself(splits):
+    """``loss="relative"`` divides each pair's Eq. (10) by that of the zero output (constant twist plus
+    the motors' prior) plus the batch median; for an untrained MDGS, whose output is that zero output,
+    it is mean(r / (r + median r)) with r the "constant twist + motors" reference's own pair errors
+    (1e-4 relative: MDGS steps in float32). The Huber form is half of Eq. (10) where every scaled
+    residual is below its delta, and |d| - delta / 2 beyond."""
+    from mdgs.losses import pair_mse
+
+    tr, te = splits["cubli-triple"]
+    b = batch_of(te, te.pairs(0)[:16], "cpu")
+    b.ctrl[:] = torch.tensor([3.0, -2.0, 1.0])
+    cls = MODELS["mdgs"]
+    rel = cls.from_data(tr, cls.Config(actuation="prior", loss="relative"))
+    rel.bind(te)
+    sc = rel.scene_on("cpu")
+    ct = MODELS["constant-twist"].from_data(te, MODELS["constant-twist"].Config(motors=True))
+    ct.bind(te)
+    q = ct.step(State(b.x, b.v), b.ctrl)
+    r = pair_mse(q.x, q.v, b.x_next, b.v_next, ~sc.static, *rel.scales(sc, "cpu"))
+    with torch.no_grad():
+        got = float(rel.losses(b)["mse"])
+    assert got == pytest.approx(float((r / (r + r.median())).mean()), rel=1e-4)
+    # Huber: half of Eq. (10) below delta (1 in the scaled units), linear beyond it
+    from mdgs.losses import huber_loss, mse_loss
+
+    x, v = torch.zeros(2, 5, 3), torch.zeros(2, 5, 3)
+    small, big = torch.full_like(x, 0.3), torch.full_like(x, 30.0)
+    assert float(huber_loss(x, v, small * 2e-3, small * 5.0, None, 2e-3, 5.0)) == pytest.approx(
+        0.5 * float(mse_loss(x, v, small * 2e-3, small * 5.0, None, 2e-3, 5.0)))
+    assert float(huber_loss(x, v, big * 2e-3, big * 5.0, None, 2e-3, 5.0)) == pytest.approx(30.0 - 0.5)

@@ -233,6 +233,7 @@ def test_config_rejects_unknown_variant():
     ({"dt": -0.01}, "dt must be a number of at least 0"),
     ({"features": "body"}, "features must be one of paper, local"),
     ({"self_weight": "yes"}, "self_weight must be true or false"),
+    ({"loss": "l1"}, "loss must be one of mse, huber, relative"),
 ])
 def test_config_rejects_out_of_range_settings_by_name(setting, phrase):
     with pytest.raises(ValueError, match=phrase):

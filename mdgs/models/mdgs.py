@@ -40,7 +40,7 @@ from mdgs.graphs import (
     gcn_norm_adjacency,
 )
 from mdgs.joints import JointSet, joints_of, project_joints
-from mdgs.losses import constraint_loss, mse_loss, speeds_of
+from mdgs.losses import constraint_loss, huber_loss, mse_loss, pair_mse, speeds_of
 from mdgs.models.base import Batch, ModelError, Simulator, State
 from mdgs.models.integrators import INTEGRATORS
 from mdgs.models.layers import GCN
@@ -62,6 +62,8 @@ OBJECT_SCALE_FLOOR = 0.05
 ACTUATION = ("none", "force", "step", "prior")
 #: Node features z_i (``features``): the paper's [x || v || k], or "local" (module docstring).
 FEATURES = ("paper", "local")
+#: The one-step loss (``loss``): Eq. (10), its Huber form, or each pair relative to doing nothing.
+LOSSES = ("mse", "huber", "relative")
 #: Training noise of Appendix B.2 for the other scenes, as a fraction of the per-step increment std.
 INCREMENT_NOISE = 0.06
 
@@ -128,6 +130,11 @@ class MDGSConfig:
         in another, and a body's spin is an input rather than a pattern across its nodes).
     self_weight : give every GCN layer a separate weight on each node's own features
         (:class:`mdgs.models.layers.GCN`); the paper's GCN only averages over a node's neighbourhood.
+    loss : the one-step term: "mse" (Eq. 10), "huber" (:func:`mdgs.losses.huber_loss`, delta 1 in the
+        scaled units) or "relative" (each pair's Eq. 10 divided by that of the zero output on the same
+        pair, i.e. of constant twist plus the priors, plus the batch's median of it: every frame weighs
+        alike however large its own increment, so the rare brake and impact frames that hold most of
+        Eq. 10 cannot buy their fit with errors on the common quiet frames).
     Scales left at 1.0, ``control_dim``, ``contact``, ``dt`` and the sigmas are filled from the
     training split by :meth:`MDGS.resolve_config`.
     """
@@ -154,6 +161,7 @@ class MDGSConfig:
     pushforward: int = 0
     features: str = "paper"
     self_weight: bool = False
+    loss: str = "mse"
     noise: str = "auto"
     noise_sigma_x: float = -1.0
     noise_sigma_v: float = -1.0
@@ -194,6 +202,8 @@ class MDGSConfig:
             raise ValueError(f"actuation must be one of {', '.join(ACTUATION)}, got {self.actuation!r}")
         if self.features not in FEATURES:
             raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
+        if self.loss not in LOSSES:
+            raise ValueError(f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
         if not isinstance(self.self_weight, bool):
             raise ValueError(f"self_weight must be true or false, got {self.self_weight!r}")
 
@@ -532,10 +542,7 @@ class MDGS(Simulator):
         lam = c.lam if c.lam is not None else 1.0 / c.force_scale
         out = self.state(obj_prop, torch.cat([z, lam * f], -1))  # Eqs. (8)-(9)
         sx, sv = self.scales(scene, dev)
-        if self._drives and ctrl is not None and c.actuation in ("step", "prior"):  # + the motors' joint response
-            dv_act = c.dt * motor_accelerations(x, ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev),
-                                                scene.n_obj)
-            out = out + torch.cat([torch.zeros_like(dv_act), dv_act / sv], -1)
+        out = out + self._prior_out(scene, x, ctrl, sv)  # + the motors' joint response, if any
         x_next, v_next = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx,
                                                    dv_scale=sv, dvc_scale=c.dvc_scale,
                                                    dw_scale=c.dw_scale)
@@ -563,7 +570,8 @@ class MDGS(Simulator):
         moving = ~scene.static
         p = self(scene, batch.x, batch.v, self.node_controls(batch.ctrl), ctrl=batch.ctrl)
         scales = self.scales(scene, batch.x.device)
-        l_mse = mse_loss(p.x, p.v, batch.x_next, batch.v_next, moving, *scales)  # Eq. (10)
+        l_mse = self._one_step_loss(scene, batch.x, batch.v, batch.ctrl, p, batch.x_next, batch.v_next, moving,
+                                    scales)  # Eq. (10)
         if cfg.pushforward:  # from the model's own state after K rollout steps (no gradient), one trained step
             with torch.no_grad():
                 s = self(scene, batch.x, batch.v, self.node_controls(batch.ctrl), simulate=True, ctrl=batch.ctrl)
@@ -574,11 +582,46 @@ class MDGS(Simulator):
                     x, v = s.x, s.v
             c = batch.ctrl_future[:, cfg.pushforward - 1]
             q = self(scene, x, v, self.node_controls(c), ctrl=c)
-            l_mse = l_mse + mse_loss(q.x, q.v, batch.x_future[:, -1], batch.v_future[:, -1], moving, *scales)
+            l_mse = l_mse + self._one_step_loss(scene, x, v, c, q, batch.x_future[:, -1], batch.v_future[:, -1],
+                                                moving, scales)
         l_cst = constraint_loss(p.force, batch.x, batch.v, p.x, p.v, scene.mass, scene.tau, scene.obj, scene.n_obj,
                                 cfg.dt, moving=moving, bound=cfg.bound, speeds=speeds_of(cfg.variant),
                                 scale=cfg.force_scale * int(moving.sum()))  # Eqs. (13)-(15)
         return {"mse": l_mse, "cst": l_cst}
+
+    def _one_step_loss(self, scene: SceneGraph, x, v, ctrl, p: Prediction, x_true, v_true, moving, scales):
+        """The one-step term of the loss (``loss``) of prediction ``p`` from ``x, v`` [B, N, 3] against the truth."""
+        kind = self.config.loss
+        if kind == "mse":
+            return mse_loss(p.x, p.v, x_true, v_true, moving, *scales)
+        if kind == "huber":
+            return huber_loss(p.x, p.v, x_true, v_true, moving, *scales)
+        with torch.no_grad():  # the zero output's error on each pair
+            x0, v0 = self._zero_step(scene, x, v, ctrl)
+            r = pair_mse(x0, v0, x_true, v_true, moving, *scales)
+        return (pair_mse(p.x, p.v, x_true, v_true, moving, *scales) / (r + r.median().clamp_min(1e-12))).mean()
+
+    def _prior_out(self, scene: SceneGraph, x, ctrl, sv):
+        """The motors' joint response over ``dt`` in g's output units [B, N, 6] (``actuation`` prior or step), or 0."""
+        c = self.config
+        if not (self._drives and ctrl is not None and c.actuation in ("step", "prior")):
+            return 0.0
+        dev = x.device
+        dv_act = c.dt * motor_accelerations(x, ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev),
+                                            scene.n_obj)
+        return torch.cat([torch.zeros_like(dv_act), dv_act / sv], -1)
+
+    def _zero_step(self, scene: SceneGraph, x, v, ctrl) -> tuple:
+        """``x', v'`` of the state network's output zero (the integrator with the priors only; no joint projection)."""
+        c = self.config
+        dev = x.device
+        sx, sv = self.scales(scene, dev)
+        out = torch.zeros(*x.shape[:-1], 6, dtype=x.dtype, device=dev) + self._prior_out(scene, x, ctrl, sv)
+        x1, v1 = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx, dv_scale=sv,
+                                           dvc_scale=c.dvc_scale, dw_scale=c.dw_scale)
+        if c.structure:
+            x1 = align_to_reference(x1, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj, mask=scene.moving(dev))
+        return x1, v1
 
     def loss_weights(self) -> dict[str, float]:
         return {"mse": 1.0, "cst": self.config.cst_weight}  # Section 3.4: summed
