@@ -44,3 +44,6 @@ print(f"{'':12s}{'mean':>10s}" + "".join(f"{'q' + str(q):>10s}" for q in (0.25, 
 for name, e in err.items():
     print(f"{name:12s}{e.mean():10.4g}" + "".join(f"{np.quantile(e, q):10.4g}" for q in (0.25, 0.5, 0.75, 0.9, 0.99)))
 print(f"pairs on which the trained model is worse than its zero output: {100 * (t > z).mean():.0f} %")
+top = np.sort(z)[::-1]
+print(f"share of the zero output's error held by its largest 1 % of pairs: {100 * top[:len(z) // 100].sum() / z.sum():.0f} %,"
+      f" by its largest 10 %: {100 * top[:len(z) // 10].sum() / z.sum():.0f} %")
