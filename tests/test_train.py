@@ -170,6 +170,8 @@ def test_pushforward_batches_carry_the_true_later_frames_and_train(data, tmp_pat
     for row, (t, f) in enumerate(idx):
         assert torch.equal(b.x_future[row, 1], torch.from_numpy(d.x[t, f + 3]))
         assert torch.equal(b.ctrl_future[row, 0], torch.from_numpy(d.ctrl[t, f + 1]))
+    part = b.rows(slice(1, 2))  # a process's share under DDP keeps the later frames of its rows
+    assert torch.equal(part.x_future, b.x_future[1:2]) and torch.equal(part.ctrl_future, b.ctrl_future[1:2])
     model = MODELS["mdgs"].from_data(d, ModelConfig(pushforward=2, zero_init=False))
     model.bind(d)
     assert model.future == 2

@@ -81,8 +81,7 @@ class Batch:
 
     def rows(self, sel: slice) -> Batch:
         """The pairs ``sel`` of this batch (every tensor sliced along its first axis)."""
-        return Batch(*(None if a is None else a[sel] for a in (self.x, self.v, self.ctrl, self.x_next,
-                                                               self.v_next, self.x_past, self.v_past)))
+        return Batch(*(None if a is None else a[sel] for a in (getattr(self, f.name) for f in fields(self))))
 
 
 def batch_of(d: SplitData, idx: np.ndarray, dev, history: int = 0, future: int = 0) -> Batch:
