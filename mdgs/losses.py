@@ -36,21 +36,19 @@ def mse_loss(x: torch.Tensor, v: torch.Tensor, x_true: torch.Tensor, v_true: tor
     halves of Z weigh alike; with the defaults it is the plain MSE. Shapes ``[B, N, 3]``;
     ``moving`` [N] bool (static nodes are excluded: they are not predicted).
     """
-    ex = ((x - x_true) / dx_scale) ** 2
-    ev = ((v - v_true) / dv_scale) ** 2
-    e = torch.cat([ex, ev], -1)  # [B, N, 6]
-    if moving is not None:
-        e = e[:, moving]
-    return e.mean()
+    return (_scaled_residual(x, v, x_true, v_true, moving, dx_scale, dv_scale) ** 2).mean()
+
+
+def _scaled_residual(x, v, x_true, v_true, moving, dx_scale, dv_scale) -> torch.Tensor:
+    """``[(x - x_true) / dx_scale || (v - v_true) / dv_scale]`` over the moving nodes: [B, N_moving, 6]."""
+    d = torch.cat([(x - x_true) / dx_scale, (v - v_true) / dv_scale], -1)
+    return d if moving is None else d[:, moving]
 
 
 def pair_mse(x: torch.Tensor, v: torch.Tensor, x_true: torch.Tensor, v_true: torch.Tensor,
              moving: torch.Tensor | None = None, dx_scale: float = 1.0, dv_scale: float = 1.0) -> torch.Tensor:
     """Eq. (10) for each graph of the batch separately: [B]; its mean is :func:`mse_loss`."""
-    e = torch.cat([((x - x_true) / dx_scale) ** 2, ((v - v_true) / dv_scale) ** 2], -1)  # [B, N, 6]
-    if moving is not None:
-        e = e[:, moving]
-    return e.mean((1, 2))
+    return (_scaled_residual(x, v, x_true, v_true, moving, dx_scale, dv_scale) ** 2).mean((1, 2))
 
 
 def huber_loss(x: torch.Tensor, v: torch.Tensor, x_true: torch.Tensor, v_true: torch.Tensor,
@@ -58,9 +56,7 @@ def huber_loss(x: torch.Tensor, v: torch.Tensor, x_true: torch.Tensor, v_true: t
                delta: float = 1.0) -> torch.Tensor:
     """Eq. (10) with the square replaced by the Huber function (quadratic up to ``delta``, in the
     scaled units, linear beyond): a rare large residual pulls no harder than ``delta`` per component."""
-    d = torch.cat([(x - x_true) / dx_scale, (v - v_true) / dv_scale], -1)
-    if moving is not None:
-        d = d[:, moving]
+    d = _scaled_residual(x, v, x_true, v_true, moving, dx_scale, dv_scale)
     return torch.nn.functional.huber_loss(d, torch.zeros_like(d), delta=delta)
 
 

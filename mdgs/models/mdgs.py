@@ -541,14 +541,8 @@ class MDGS(Simulator):
                                      scene.mass.to(dev))
         lam = c.lam if c.lam is not None else 1.0 / c.force_scale
         out = self.state(obj_prop, torch.cat([z, lam * f], -1))  # Eqs. (8)-(9)
-        sx, sv = self.scales(scene, dev)
-        out = out + self._prior_out(scene, x, ctrl, sv)  # + the motors' joint response, if any
-        x_next, v_next = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx,
-                                                   dv_scale=sv, dvc_scale=c.dvc_scale,
-                                                   dw_scale=c.dw_scale)
+        x_next, v_next = self._integrate(scene, x, v, out, ctrl)
         moving = scene.moving(dev)
-        if c.structure:
-            x_next = align_to_reference(x_next, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj, mask=moving)
         if simulate and c.joints and self._joints:
             x_next, v_next = project_joints(x_next, v_next, self._joints, scene.ref_shape.to(dev), scene.obj.to(dev),
                                             scene.n_obj, scene.mass.to(dev))
@@ -601,27 +595,25 @@ class MDGS(Simulator):
             r = pair_mse(x0, v0, x_true, v_true, moving, *scales)
         return (pair_mse(p.x, p.v, x_true, v_true, moving, *scales) / (r + r.median().clamp_min(1e-12))).mean()
 
-    def _prior_out(self, scene: SceneGraph, x, ctrl, sv):
-        """The motors' joint response over ``dt`` in g's output units [B, N, 6] (``actuation`` prior or step), or 0."""
-        c = self.config
-        if not (self._drives and ctrl is not None and c.actuation in ("step", "prior")):
-            return 0.0
-        dev = x.device
-        dv_act = c.dt * motor_accelerations(x, ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev),
-                                            scene.n_obj)
-        return torch.cat([torch.zeros_like(dv_act), dv_act / sv], -1)
-
-    def _zero_step(self, scene: SceneGraph, x, v, ctrl) -> tuple:
-        """``x', v'`` of the state network's output zero (the integrator with the priors only; no joint projection)."""
+    def _integrate(self, scene: SceneGraph, x, v, out, ctrl) -> tuple:
+        """``x', v'`` [B, N, 3] from g's output ``out`` [B, N, 6]: plus the motors' joint response over ``dt``
+        (``actuation`` prior or step), through the integrator, then the structural constraint module."""
         c = self.config
         dev = x.device
         sx, sv = self.scales(scene, dev)
-        out = torch.zeros(*x.shape[:-1], 6, dtype=x.dtype, device=dev) + self._prior_out(scene, x, ctrl, sv)
+        if self._drives and ctrl is not None and c.actuation in ("step", "prior"):
+            dv_act = c.dt * motor_accelerations(x, ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev),
+                                                scene.n_obj)
+            out = out + torch.cat([torch.zeros_like(dv_act), dv_act / sv], -1)
         x1, v1 = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx, dv_scale=sv,
                                            dvc_scale=c.dvc_scale, dw_scale=c.dw_scale)
         if c.structure:
             x1 = align_to_reference(x1, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj, mask=scene.moving(dev))
         return x1, v1
+
+    def _zero_step(self, scene: SceneGraph, x, v, ctrl) -> tuple:
+        """``x', v'`` of the state network's output zero (constant twist plus the priors; no joint projection)."""
+        return self._integrate(scene, x, v, torch.zeros(*x.shape[:-1], 6, dtype=x.dtype, device=x.device), ctrl)
 
     def loss_weights(self) -> dict[str, float]:
         return {"mse": 1.0, "cst": self.config.cst_weight}  # Section 3.4: summed
