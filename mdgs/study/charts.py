@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from mdgs.runs import atomic_savefig
+from mdgs.study.tables import _pareto, _points, _run_mean, _scenes
 
 __all__ = ["draw_charts"]
 
@@ -31,56 +32,6 @@ def _plt():
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def _scenes(lines):
-    out = []
-    for ln in lines:
-        if ln["scene"] not in out:
-            out.append(ln["scene"])
-    return out
-
-
-def _run_mean(ln, set_name="test", t=110):
-    vals = [v for v in ln["sets"][set_name][f"pos_mse_t{t}"] if v is not None]
-    return (float(np.mean(vals)) if vals else None), len(vals) < ln["sets"][set_name]["trajectories"]
-
-
-def _points(lines, scene):
-    """{label: (kind, cost mean, cost std, err mean, err std, any failed)} for one scene."""
-    groups: dict = {}
-    for ln in lines:
-        if ln["scene"] == scene and ln["kind"] in ("learned", "reference"):
-            groups.setdefault(ln["label"], []).append(ln)
-    pts = {}
-    for label, lns in groups.items():
-        errs, failed = [], any(ln.get("status") == "failed" for ln in lns)
-        lns = [ln for ln in lns if ln.get("status", "ok") == "ok"]
-        if not lns:
-            continue
-        for ln in lns:
-            m, f = _run_mean(ln)
-            failed |= f or m is None
-            if m is not None:
-                errs.append(m)
-        costs = [ln["cost"]["single"]["ms_per_frame"] for ln in lns]
-        if not errs:  # failed on every trajectory by t = 110 in every seed: drawn at the top edge
-            pts[label] = (lns[0]["kind"], float(np.mean(costs)), float(np.std(costs)), None, 0.0, True)
-            continue
-        pts[label] = (lns[0]["kind"], float(np.mean(costs)), float(np.std(costs)), float(np.mean(errs)),
-                      float(np.std(errs, ddof=1)) if len(errs) > 1 else 0.0, failed)
-    return pts
-
-
-def _pareto(pts) -> set:
-    front = set()
-    for a, (_, ca, _, ea, _, fa) in pts.items():
-        if fa or ea is None:
-            continue
-        if not any(eb is not None and cb <= ca and eb <= ea and (cb < ca or eb < ea) and not fb
-                   for b, (_, cb, _, eb, _, fb) in pts.items() if b != a):
-            front.add(a)
-    return front
 
 
 def _floor(lines, scene, t=110):

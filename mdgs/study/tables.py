@@ -58,6 +58,59 @@ class Table:
         return "\n".join([rf"% {self.title}", rf"\begin{{tabular}}{{{cols}}}", *body, r"\end{tabular}", ""])
 
 
+def _scenes(lines):
+    out = []
+    for ln in lines:
+        if ln["scene"] not in out:
+            out.append(ln["scene"])
+    return out
+
+
+def _run_mean(ln, set_name="test", t=110):
+    """(mean over the trajectories not failed, whether any failed) of one cell at ``t``."""
+    vals = [v for v in ln["sets"][set_name][f"pos_mse_t{t}"] if v is not None]
+    return (float(np.mean(vals)) if vals else None), len(vals) < ln["sets"][set_name]["trajectories"]
+
+
+def _points(lines, scene):
+    """{label: (kind, cost mean, cost std, err mean, err std, any failed)} for one scene."""
+    groups: dict = {}
+    for ln in lines:
+        if ln["scene"] == scene and ln["kind"] in ("learned", "reference"):
+            groups.setdefault(ln["label"], []).append(ln)
+    pts = {}
+    for label, lns in groups.items():
+        errs, failed = [], any(ln.get("status") == "failed" for ln in lns)
+        lns = [ln for ln in lns if ln.get("status", "ok") == "ok"]
+        if not lns:
+            continue
+        for ln in lns:
+            m, f = _run_mean(ln)
+            failed |= f or m is None
+            if m is not None:
+                errs.append(m)
+        costs = [ln["cost"]["single"]["ms_per_frame"] for ln in lns]
+        if not errs:  # failed on every trajectory by t = 110 in every seed: drawn at the top edge
+            pts[label] = (lns[0]["kind"], float(np.mean(costs)), float(np.std(costs)), None, 0.0, True)
+            continue
+        pts[label] = (lns[0]["kind"], float(np.mean(costs)), float(np.std(costs)), float(np.mean(errs)),
+                      float(np.std(errs, ddof=1)) if len(errs) > 1 else 0.0, failed)
+    return pts
+
+
+def _pareto(pts) -> set:
+    """Labels of the points no other (not failed) point beats on both cost and error: the Pareto front;
+    a point that failed on some trajectory is never on it."""
+    front = set()
+    for a, (_, ca, _, ea, _, fa) in pts.items():
+        if fa or ea is None:
+            continue
+        if not any(eb is not None and cb <= ca and eb <= ea and (cb < ca or eb < ea) and not fb
+                   for b, (_, cb, _, eb, _, fb) in pts.items() if b != a):
+            front.add(a)
+    return front
+
+
 def _mean_valid(vals) -> tuple[float | None, int]:
     ok = [v for v in vals if v is not None and math.isfinite(v)]
     return (float(np.mean(ok)) if ok else None), len(ok)
@@ -265,6 +318,72 @@ def _stability_table(lines) -> Table | None:
     return Table("Stability", header, rows, note, rows)
 
 
+def _ratio_mean(lns, refs, t):
+    """Mean over seeds of (run mean / plain constant twist mean on the same trajectories) on the test
+    set; None if any seed failed everywhere or there is no reference."""
+    ref = next((r for r in refs if r["model"] == "constant-twist" and not r.get("settings")), None)
+    if ref is None:
+        return None
+    rv = ref["sets"]["test"][f"pos_mse_t{t}"]
+    out = []
+    for ln in lns:
+        if ln.get("status") == "failed":
+            return None
+        pairs = [(a, b) for a, b in zip(ln["sets"]["test"][f"pos_mse_t{t}"], rv, strict=True)
+                 if a is not None and b is not None]
+        if not pairs:
+            return None
+        out.append(np.mean([a for a, _ in pairs]) / max(np.mean([b for _, b in pairs]), 1e-300))
+    return float(np.mean(out))
+
+
+def _verdict_table(lines) -> Table | None:
+    """Per scene, who wins: the Pareto front, the best learned row at each horizon against constant
+    twist, the learned rows that beat doing nothing, and the cheapest MuJoCo that beats them all."""
+    rows = []
+    for scene in _scenes(lines):
+        lns = [ln for ln in lines if ln["scene"] == scene]
+        learned = _rows_by_label([ln for ln in lns if ln.get("status") in ("ok", "failed", None)])
+        refs = [ln for ln in lns if ln["kind"] == "reference" and ln.get("status", "ok") == "ok"]
+        if not learned or not refs:
+            continue
+        pts = _points(lines, scene)
+        front = sorted(_pareto(pts), key=lambda k: pts[k][1])
+        best, beats = {}, {}
+        for t in TIMES:
+            cand = []
+            for (label, _), by_scene in learned.items():
+                c = _cell(by_scene[scene], "test", t)
+                if c is None or c[0] is None or c[2] < c[3]:  # failed somewhere: not a winner at t
+                    continue
+                cand.append((c[0], label, _ratio_mean(by_scene[scene], refs, t)))
+            best[t] = min(cand) if cand else None
+            beats[t] = {label for _, label, r in cand if r is not None and r < 1.0}
+        both = [label for (label, _) in learned if label in beats[40] and label in beats[110]]
+        mj = sorted((pts[k][1], k) for k in pts if k.startswith("mujoco dt x") and pts[k][3] is not None
+                    and not pts[k][5] and best[110] is not None and pts[k][3] <= best[110][0])
+
+        def fmt(b):
+            if b is None:
+                return "none finished every trajectory"
+            m, label, r = b
+            return f"{label}: {m * SCALE:.3g}" + (f" ({r:.2g}x constant twist)" if r is not None else "")
+        rows.append([scene, ", ".join(front) or "-", fmt(best[40]), fmt(best[110]),
+                     ", ".join(both) or "none",
+                     "-" if not mj else f"{mj[0][1]} ({mj[0][0]:.3g} ms per frame)"])
+    if not rows:
+        return None
+    header = ["scene", "Pareto front (t=110 error against ms per frame)", "best learned, t=40",
+              "best learned, t=110", "learned rows below constant twist at t=40 and t=110",
+              "coarsest MuJoCo as accurate as the best learned row at t=110"]
+    note = ("Read from the tables above and the speed-accuracy chart: the Pareto front holds the rows no other "
+            "row beats on both cost (one trajectory, ms per simulated frame) and t=110 error (a row that failed on "
+            "some trajectory is never on it); a best learned row is the lowest mean among the learned rows that "
+            "finished every test trajectory; \"below constant twist\": the mean over seeds of the ratio to the "
+            "plain constant-twist reference on the same trajectories is below 1 at both horizons.")
+    return Table("Who wins, per scene", header, rows, note, rows)
+
+
 def _group(lines, pred):
     groups: dict = {}
     for ln in lines:
@@ -334,7 +453,7 @@ def build_tables(lines: list[dict]) -> list[Table]:
     if other:
         out += _model_table("Other scenes", lines, other)
     out += _generalization_table(lines)
-    for t in (_stability_table(lines), _speed_table(lines), _resolution_table(lines)):
+    for t in (_verdict_table(lines), _stability_table(lines), _speed_table(lines), _resolution_table(lines)):
         if t is not None:
             out.append(t)
     return out
