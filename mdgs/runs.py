@@ -242,9 +242,17 @@ def check_run_folder(run: str | os.PathLike) -> Path:
 
 
 def load_run(run: str | os.PathLike, dev) -> tuple:
-    """Load ``<run>/checkpoint.pt`` -> (model on ``dev`` in eval mode, checkpoint dict)."""
+    """Load ``<run>/checkpoint.pt`` -> (model on ``dev`` in eval mode, checkpoint dict).
+
+    A run trained with a checkpoint selection rule (``select`` other than ``"last"``) evaluates the
+    weights of its selected epoch, kept in the checkpoint beside the last epoch's (the returned
+    dict's ``model`` and ``evaluated_epoch`` say so)."""
     path = check_run_folder(run)
     state = read_checkpoint(path, dev)
+    state["evaluated_epoch"] = state.get("epoch")
+    sel = state.get("selected_epoch")
+    if sel is not None and sel != state.get("epoch") and state.get("selected_model") is not None:
+        state = {**state, "model": state["selected_model"], "evaluated_epoch": sel}
     try:
         return load_model(state, dev), state
     except RunError as e:  # name the file: several runs may be evaluated at once

@@ -421,3 +421,65 @@ def test_planar_scene_trains_with_the_default_noise(planar, tmp_path):
                           model=ModelConfig(noise=noise)))
         losses[noise] = last["train_mse"]
     assert losses["auto"] < 100 * losses["none"], losses
+
+
+@pytest.mark.parametrize("select", ["rollout", "valid"])
+def test_select_keeps_and_evaluates_the_epoch_its_rule_picks(data, tmp_path, select):
+    """With select=rollout (valid) the checkpoint names the epoch of the lowest validation rollout
+    score (one-step validation error) in metrics.json, load_run evaluates that epoch's weights, and
+    rolling the loaded model out again gives the recorded score (an independent recomputation)."""
+    from mdgs.evaluate.rollout import rollout_score
+    from mdgs.runs import load_run
+
+    out = tmp_path / select
+    train(_cfg(data, out, epochs=4, select=select))
+    hist = json.loads((out / "metrics.json").read_text())
+    key = {"rollout": "valid_rollout", "valid": "valid_mse"}[select]
+    want = min(hist, key=lambda r: r[key])["epoch"]
+    model, state = load_run(out, "cpu")
+    assert state["selected_epoch"] == state["evaluated_epoch"] == want
+    if select == "rollout":
+        va = load_split(data / "valid.h5")
+        assert rollout_score(model, va, "cpu") == pytest.approx(hist[want][key], rel=1e-5)
+    last = torch.load(out / "checkpoint.pt", weights_only=False)
+    differs = any(not torch.equal(v, last["model"][k]) for k, v in model.state_dict().items())
+    assert differs == (want != hist[-1]["epoch"])  # the last epoch's weights only when it was the best
+
+
+def test_select_cannot_change_on_resume_and_old_runs_resume_as_last(data, run, tmp_path):
+    """A run cannot switch its selection rule midway (the earlier epochs were never scored by the new
+    rule); a checkpoint written before the rule existed resumes as select=last."""
+    import shutil
+
+    from mdgs.runs import RunError
+
+    folder = tmp_path / "old"
+    shutil.copytree(run, folder)
+    state = torch.load(folder / "checkpoint.pt", weights_only=False)
+    del state["train_fingerprint"]["select"]
+    torch.save(state, folder / "checkpoint.pt")
+    assert train(_cfg(data, folder)) == {}  # finished, resumable as last: nothing to do, no error
+    with pytest.raises(RunError, match="select"):
+        train(_cfg(data, folder, epochs=9, select="rollout"))
+
+
+def test_rollout_score_caps_failed_frames_at_the_position_variance(data):
+    """The score of a model that leaves the data at once is the cap itself (every frame after the
+    given one failed), never a large number; the constant-twist reference scores below the cap."""
+    from mdgs.evaluate.rollout import DIVERGENCE_FACTOR as F
+    from mdgs.evaluate.rollout import divergence_threshold, rollout_score
+
+    va = load_split(data / "valid.h5")
+    cap = divergence_threshold(va) / F
+    cls = MODELS["constant-twist"]
+    assert 0 < rollout_score(cls.from_data(va), va, "cpu") < cap
+
+    class Away(cls):
+        def step(self, state, ctrl):
+            import dataclasses
+
+            s = super().step(state, ctrl)
+            return dataclasses.replace(s, x=s.x + 1e3)
+
+    Fr = va.x.shape[1]
+    assert rollout_score(Away.from_data(va), va, "cpu") == pytest.approx(cap * (Fr - 1) / Fr)  # frame 0 given

@@ -35,6 +35,9 @@ def train_cmd(
     seed: int = typer.Option(0, "--seed", help="Seed of initialisation, batch order and noise."),
     max_steps: int = typer.Option(0, "--max-steps", help="Cap on steps per epoch (0: full pass)."),
     valid_max_pairs: int = typer.Option(0, "--valid-max-pairs", help="Cap on validation pairs (0: all)."),
+    select: str = typer.Option("last", "--select",
+                               help="Which epoch's weights to keep for evaluation: last, valid (lowest one-step "
+                                    "validation error) or rollout (lowest validation rollout error, failures capped)."),
     device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),
 ) -> None:
     """Train a model on a generated dataset (MDGS: Adam, plateau scheduler, training noise; Appendix B.2)."""
@@ -57,7 +60,7 @@ def train_cmd(
         lr = cls.default_lr if lr is None else lr
         cfg = TrainConfig(data=str(data), out=str(out), model_name=model, epochs=epochs, batch_size=batch_size,
                           lr=lr, seed=seed, max_steps=max_steps, valid_max_pairs=valid_max_pairs, device=device,
-                          model=mcfg)
+                          select=select, model=mcfg)
     except ValueError as e:
         fail(f"--model {model}: {e}")
     except (ModelError, RunError) as e:

@@ -20,7 +20,7 @@ import torch
 from mdgs.data.split import SplitData
 from mdgs.models import Simulator
 
-__all__ = ["DIVERGENCE_FACTOR", "Rollout", "rollout", "divergence_threshold"]
+__all__ = ["DIVERGENCE_FACTOR", "Rollout", "rollout", "divergence_threshold", "rollout_score"]
 
 #: A trajectory diverges when its position MSE exceeds this factor times the split's position variance.
 DIVERGENCE_FACTOR = 100.0
@@ -107,3 +107,14 @@ def rollout(model: Simulator, d: SplitData, dev=None, threshold: float | None = 
         vel[:, t] = np.where(dead, np.nan, ev)
         xs[:, t], vs[:, t] = xp, vp
     return Rollout(xs, vs, pos, vel, div, threshold, h + 1, spent)
+
+
+def rollout_score(model: Simulator, d: SplitData, dev=None) -> float:
+    """One number for how well ``model`` rolls out ``d``: the position MSE (m^2) averaged over every
+    trajectory and frame, each frame's error capped at the position variance of the moving nodes
+    (the studies' failure threshold at ``failure_factor`` 1), so a trajectory that fails or diverges
+    counts at the cap from there on, never as a large number. Checkpoint selection by validation
+    rollout (:class:`mdgs.train.TrainConfig` ``select="rollout"``) minimises it."""
+    r = rollout(model, d, dev)
+    cap = divergence_threshold(d) / DIVERGENCE_FACTOR
+    return float(np.where(np.isfinite(r.pos_mse), np.minimum(r.pos_mse, cap), cap).mean())

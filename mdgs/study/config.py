@@ -20,6 +20,7 @@ A study file has these tables (every key optional unless marked; defaults in the
     max_steps = 0                       # cap on steps per epoch (0: a full pass)
     batch_size = 32
     valid_max_pairs = 0
+    select = "last"                     # weights evaluated: last epoch, or best by "valid" / "rollout"
 
     [[scenes]]
     name = "cubli-triple"               # a built-in scene, or
@@ -96,6 +97,7 @@ class Budget:
     max_steps: int = 0
     batch_size: int = 32
     valid_max_pairs: int = 0
+    select: str = "last"
 
 
 @dataclass(frozen=True)
@@ -206,10 +208,13 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
 
     bt = _take(doc, "budget", dict, f, {})
     where = f"{f} [budget]"
-    _unknown(bt, {"epochs", "max_steps", "batch_size", "valid_max_pairs"}, where)
+    _unknown(bt, {"epochs", "max_steps", "batch_size", "valid_max_pairs", "select"}, where)
     budget = Budget(epochs=_take(bt, "epochs", int, where, 30), max_steps=_take(bt, "max_steps", int, where, 0),
                     batch_size=_take(bt, "batch_size", int, where, 32),
-                    valid_max_pairs=_take(bt, "valid_max_pairs", int, where, 0))
+                    valid_max_pairs=_take(bt, "valid_max_pairs", int, where, 0),
+                    select=_take(bt, "select", str, where, "last"))
+    if budget.select not in ("last", "valid", "rollout"):
+        raise StudyError(f"{where}: select = {budget.select!r} is not one of last, valid, rollout")
     if budget.epochs < 1 or budget.batch_size < 1 or budget.max_steps < 0 or budget.valid_max_pairs < 0:
         raise StudyError(f"{where}: epochs and batch_size must be >= 1, max_steps and valid_max_pairs >= 0")
 

@@ -77,8 +77,8 @@ class Cell:
              "long_trajectories": study.long_trajectories, "failure_factor": study.failure_factor}
         if study.trajectories:  # absent at the preset's count: keys of cells run before the setting existed hold
             d["trajectories"] = study.trajectories
-        if MODELS[self.model].learned:
-            d["budget"] = asdict(study.budget)
+        if MODELS[self.model].learned:  # select absent at "last": keys of cells run before it existed hold
+            d["budget"] = {k: v for k, v in asdict(study.budget).items() if k != "select" or v != "last"}
         if MODELS[self.model].revision:  # absent for revision 0: keys of cells run before revisions existed hold
             d["revision"] = MODELS[self.model].revision
         return d
@@ -259,7 +259,7 @@ def _run_cell(study: StudyConfig, out: Path, cell: Cell, progress, t0: float) ->
         tcls = MODELS[trainee.model]
         cfg = TrainConfig(data=str(data), out=str(run), model_name=trainee.model, epochs=b.epochs,
                           batch_size=b.batch_size, seed=cell.seed, device=study.device, max_steps=b.max_steps,
-                          valid_max_pairs=b.valid_max_pairs, model=tcls.Config(**dict(cell.settings)))
+                          valid_max_pairs=b.valid_max_pairs, select=b.select, model=tcls.Config(**dict(cell.settings)))
         t1 = time.perf_counter()
         _train_or_wait(cfg, progress)
         model, state = load_run(run, dev)

@@ -6,7 +6,9 @@ recipe (:meth:`~mdgs.models.base.Simulator.perturb`, its torch generator seeded 
 stream), its named losses (:meth:`~mdgs.models.base.Simulator.losses`) are summed with the
 model's weights, and the model's optimiser steps. After every epoch the one-step validation
 error (:meth:`~mdgs.models.base.Simulator.validation_error`) drives the model's scheduler, and
-the checkpoint, metrics and step log are written atomically (:mod:`mdgs.runs`).
+the checkpoint, metrics and step log are written atomically (:mod:`mdgs.runs`). With
+``select`` other than ``"last"`` the weights of the best epoch so far by that rule are kept in
+the checkpoint too, and :func:`mdgs.runs.load_run` evaluates those.
 
 Running the same ``mdgs train`` command again resumes from the last finished epoch; since the
 random stream of epoch ``e`` depends only on ``(seed, e)``, a resumed run continues exactly as
@@ -28,6 +30,7 @@ import torch
 from mdgs.data.io import output_problem
 from mdgs.data.schema import DatasetError
 from mdgs.data.split import SplitData, load_splits
+from mdgs.evaluate.rollout import rollout_score
 from mdgs.models import ModelError, batch_of, get_model, one_step_error
 from mdgs.runs import (
     RunError,
@@ -55,6 +58,10 @@ class _Losses(torch.nn.Module):
 
 class TrainingError(RunError):
     """Training that cannot go on (a diverged loss); the message says what to change."""
+
+
+#: Checkpoint selection rules of :attr:`TrainConfig.select`.
+SELECT = ("last", "valid", "rollout")
 
 
 @dataclass
@@ -86,6 +93,12 @@ class TrainConfig:
         cap on validation pairs per epoch (0: all; an even subsample otherwise).
     log_every
         steps between entries of ``steps.json``.
+    select
+        which epoch's weights the run keeps for evaluation: ``"last"`` (default; every study so
+        far), ``"valid"`` (lowest one-step validation error) or ``"rollout"`` (lowest validation
+        rollout score, :func:`mdgs.evaluate.rollout.rollout_score`: position MSE over every frame
+        of every validation trajectory, capped at the failure threshold). The same rule for every
+        model of a comparison (``../shared/baselines.md``: best checkpoint on the validation split).
     model
         the model's config (``MODELS[model_name].Config``); ``None``: its defaults.
         Settings the model takes from data are filled by its ``resolve_config``.
@@ -102,6 +115,7 @@ class TrainConfig:
     max_steps: int = 0
     valid_max_pairs: int = 0
     log_every: int = 10
+    select: str = "last"
     model: Any = None
 
     def __post_init__(self):
@@ -111,6 +125,8 @@ class TrainConfig:
                 raise RunError(f"--{name.replace('_', '-')} {val} must be an integer of at least {lo}")
         if self.lr is not None and not (isinstance(self.lr, float | int) and np.isfinite(self.lr) and self.lr > 0):
             raise RunError(f"--lr {self.lr} must be a positive number")
+        if self.select not in SELECT:
+            raise RunError(f"--select {self.select!r} is not one of {', '.join(SELECT)}")
         if not isinstance(self.seed, int) or not 0 <= self.seed < 2**63:
             raise RunError(f"--seed {self.seed} must be an integer from 0 to 2**63 - 1")
 
@@ -132,6 +148,14 @@ def _with_absent(old: dict, config_cls) -> dict:
     absent = {f.name: f.default for f in fields(config_cls) if f.default is not MISSING}
     absent |= getattr(config_cls, "ABSENT", {})
     return {**old, "model": {**{k: v for k, v in absent.items() if k not in old["model"]}, **old["model"]}}
+
+
+def _selected(history: list[dict], select: str) -> int:
+    """The epoch whose weights the run keeps under rule ``select`` (the first of equal scores)."""
+    if select == "last":
+        return history[-1]["epoch"]
+    key = {"valid": "valid_mse", "rollout": "valid_rollout"}[select]
+    return min(history, key=lambda r: r[key])["epoch"]
 
 
 def _load_splits(cfg: TrainConfig, splits: dict | None) -> tuple[SplitData, SplitData]:
@@ -196,7 +220,7 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
         if state["data_identity"]["mjcf_sha256"] != tr.identity()["mjcf_sha256"]:
             raise RunError(f"{out} holds a run trained on scene {state['data_identity']['scene']!r}, not on "
                            f"{tr.identity()['scene']!r} from {cfg.data}; choose another --out or delete {ckpt_path}")
-        old = _with_absent(state["train_fingerprint"], cls.Config)
+        old = {"select": "last", **_with_absent(state["train_fingerprint"], cls.Config)}  # runs before select: last
         if old != fp:
             diff = sorted(k for k in fp if old.get(k) != fp[k])
             diff += sorted(f"model.{k}" for k in fp["model"] if old.get("model", {}).get(k) != fp["model"][k])
@@ -214,11 +238,13 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
     step_model = dist_.wrap(_Losses(model), dev)
     opt, sched, when = model.optimizer(cfg.lr)
     history, steps_log, start = [], [], 0
+    best_weights = None  # the selected epoch's weights (select other than "last"), kept in the checkpoint
     if state is not None:
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
         history, steps_log, start = state["history"], state["steps"], state["epoch"] + 1
+        best_weights = state.get("selected_model")
     resolved["processes"] = dist_.world
     if dist_.is_main:
         out.mkdir(parents=True, exist_ok=True)
@@ -271,14 +297,20 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
             sched.step(val)
         rec = {"epoch": epoch, **{f"train_{k}": v / n_steps for k, v in tot.items()},
                "valid_mse": val, "lr": opt.param_groups[0]["lr"], "steps": n_steps,
-               "train_seconds": train_s, "seconds": time.perf_counter() - t0}
+               "train_seconds": train_s}
+        if cfg.select == "rollout" and dist_.is_main:
+            rec["valid_rollout"] = rollout_score(model, va, dev)
+        rec["seconds"] = time.perf_counter() - t0
         history.append(rec)
+        best = _selected(history, cfg.select) if dist_.is_main else None  # the rollout score is rank 0's
+        if dist_.is_main and cfg.select != "last" and best == epoch:
+            best_weights = {k: v.detach().clone() for k, v in model.state_dict().items()}
         if dist_.is_main:  # only rank 0 writes; the others wait so a resume sees a finished epoch
             write_checkpoint(ckpt_path, {
                 "model_name": cls.name, "model": model.state_dict(), "opt": opt.state_dict(),
                 "sched": sched.state_dict(), "epoch": epoch, "config": resolved, "train_fingerprint": fp,
                 "data_identity": tr.identity(), "has_contact": tr.has_contact, "history": history,
-                "steps": steps_log})
+                "steps": steps_log, "selected_epoch": best, "selected_model": best_weights})
             atomic_json(history, out / "metrics.json")
             atomic_json(steps_log, out / "steps.json")
             progress({"kind": "epoch", **rec})
