@@ -80,10 +80,9 @@ def kabsch(ref: torch.Tensor, pred: torch.Tensor, seg: torch.Tensor, n_seg: int 
     H = q.new_zeros(B, n_seg, 3, 3).index_add_(1, seg, outer)
     # a diverged prediction (NaN/Inf) gets a NaN placement instead of an SVD error, so a rollout
     # marks the trajectory as diverged rather than aborting the whole batch
+    # (branch-free: no host sync, one graph under torch.compile)
     bad = ~torch.isfinite(H).flatten(-2).all(-1)  # [B, S]
-    any_bad = bool(bad.any())  # one host sync
-    if any_bad:
-        H = torch.where(bad[..., None, None], torch.eye(3, dtype=H.dtype, device=H.device), H)
+    H = torch.where(bad[..., None, None], torch.eye(3, dtype=H.dtype, device=H.device), H)
     U, _, Vh = torch.linalg.svd(H)
     V = Vh.transpose(-1, -2)
     d = torch.sign(torch.linalg.det(V @ U.transpose(-1, -2)))
@@ -91,9 +90,8 @@ def kabsch(ref: torch.Tensor, pred: torch.Tensor, seg: torch.Tensor, n_seg: int 
     D = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], -1))
     R = V @ D @ U.transpose(-1, -2)
     t = cq - (R @ cp.unsqueeze(-1)).squeeze(-1)
-    if any_bad:
-        R = torch.where(bad[..., None, None], torch.nan, R)
-        t = torch.where(bad[..., None], torch.nan, t)
+    R = torch.where(bad[..., None, None], torch.nan, R)
+    t = torch.where(bad[..., None], torch.nan, t)
     return R, t
 
 

@@ -1,6 +1,7 @@
 """Which epoch's weights roll out best, and can the validation split tell?
 
     python benchmarks/mdgs_probes/epoch_selection.py DATA_FOLDER OUT_DIR SEED EPOCHS [MODEL] [key=value ...]
+    python benchmarks/mdgs_probes/epoch_selection.py --summary OUT_DIR/epoch_selection.jsonl [EARLY]
 
 Trains ``MODEL`` (default mdgs) on ``DATA_FOLDER`` at the small study's recipe (batch 32, the model's
 own rate and noise, 512 validation pairs), one epoch at a time (the run resumes), keeps every
@@ -11,7 +12,10 @@ diverged trajectory counts as failed, never as a large number), and the test MSE
 (mean over the trajectories not diverged, and how many). Then the test figures of three rules:
 the last epoch (what every run of the studies uses), the epoch with the best one-step validation
 error, and the epoch with the best validation rollout score. Appends one JSON line per run to
-``OUT_DIR/epoch_selection.jsonl``. docs/mdgs-experiments.md quotes it.
+``OUT_DIR/epoch_selection.jsonl``. ``--summary`` prints, per data folder, the mean over seeds of
+the test t = 40 / t = 110 under each rule (``EARLY``, default 5: also the rules restricted to the
+first EARLY epochs, the studies' budget) and the correlation over epochs of each validation
+figure with the test rollout score. docs/mdgs-experiments.md quotes it.
 """
 import json
 import os
@@ -28,6 +32,42 @@ from mdgs.runs import load_run
 from mdgs.train import TrainConfig, train
 
 torch.set_num_threads(1)
+
+
+def summary(path, early=5):
+    runs = [json.loads(x) for x in open(path) if x.strip()]
+    by = {}
+    for r in runs:
+        by.setdefault((os.path.basename(os.path.normpath(r["data"])), r["model"], json.dumps(r["settings"])), []).append(r)
+    for (scene, model, settings), rs in by.items():
+        print(f"{scene} {model} {settings}: seeds {sorted(r['seed'] for r in rs)}, epochs {len(rs[0]['rows'])}")
+        rules = {f"last of {early}": lambda rows: rows[early - 1],
+                 f"best valid rollout of {early}": lambda rows: min(rows[:early], key=lambda e: e["valid_rollout"]),
+                 "last": lambda rows: rows[-1],
+                 "best one-step valid": lambda rows: min(rows, key=lambda e: e["valid_one_step"]),
+                 "best valid rollout": lambda rows: min(rows, key=lambda e: e["valid_rollout"])}
+        for name, rule in rules.items():
+            picked = [rule(r["rows"]) for r in rs]
+
+            def ms(key, picked=picked):
+                v = [p[key] for p in picked]
+                if any(x is None for x in v):
+                    return "failed"
+                return f"{1e3 * np.mean(v):.3g} +- {1e3 * np.std(v, ddof=1) if len(v) > 1 else 0:.2g}"
+            print(f"  {name:28s} epochs {[p['epoch'] for p in picked]}: t40 {ms('test_t40')}, t110 {ms('test_t110')}"
+                  f" ({sum(p['test_t110_n'] for p in picked)}/{10 * len(picked)} reach t110)")
+        for key in ("valid_one_step", "valid_rollout"):
+            c = [np.corrcoef([x[key] for x in r["rows"]], [x["test_rollout"] for x in r["rows"]])[0, 1] for r in rs]
+            print(f"  correlation over epochs of {key} with the test rollout score: {np.round(c, 2).tolist()}")
+        ratio = [max(x["test_t110"] or np.inf for x in r["rows"]) / min(x["test_t110"] or np.inf for x in r["rows"]) for r in rs]
+        fall = [r["rows"][0]["valid_one_step"] / min(x["valid_one_step"] for x in r["rows"]) for r in rs]
+        print(f"  one-step validation error falls {np.round(fall, 1).tolist()}x; test t110 max/min over epochs "
+              f"{np.round(ratio, 1).tolist()}")
+
+
+if sys.argv[1] == "--summary":
+    summary(sys.argv[2], int(sys.argv[3]) if len(sys.argv) > 3 else 5)
+    sys.exit(0)
 data, out, seed, epochs = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
 model_name = sys.argv[5] if len(sys.argv) > 5 and "=" not in sys.argv[5] else "mdgs"
 kw = {}
