@@ -87,3 +87,18 @@ def test_constant_twist_has_nothing_to_train(test_split):
     assert not ref.learned and ref.parameter_count() == 0
     with pytest.raises(NotImplementedError):
         ref.losses(None)
+
+
+@pytest.mark.skipif(not any(__import__("shutil").which(c) for c in ("cc", "gcc", "clang")),
+                    reason="torch.compile on a CPU needs a C compiler")
+def test_a_compiled_step_rolls_out_the_eager_trajectories(test_split):
+    """compile_step swaps in a torch.compile'd step (a new function object) whose rollout is the
+    eager one; constant twist: the cheapest model to compile (seconds)."""
+    from mdgs.models import compile_step
+
+    ref = MODELS["constant-twist"].from_data(test_split)
+    eager = rollout(ref, test_split, "cpu")
+    assert "step" not in vars(ref)
+    assert compile_step(ref) is ref and "step" in vars(ref)  # the instance's own (compiled) step
+    compiled = rollout(ref, test_split, "cpu")
+    np.testing.assert_allclose(compiled.x, eager.x, rtol=0, atol=1e-5)  # float32 fusion may reorder rounding

@@ -6,7 +6,15 @@ carries its ``Config`` dataclass (every default documented) and a one-line ``sum
 
 from __future__ import annotations
 
-from mdgs.models.base import Batch, ModelError, Simulator, State, batch_of, one_step_error
+from mdgs.models.base import (
+    Batch,
+    ModelError,
+    Simulator,
+    State,
+    batch_of,
+    compile_step,
+    one_step_error,
+)
 from mdgs.models.gns import GNS
 from mdgs.models.hgns import HGNS
 from mdgs.models.lgns import LGNS
@@ -14,7 +22,8 @@ from mdgs.models.mdgs import MDGS, MDGSNoConstraint, MDGSSingleSpeed
 from mdgs.models.references import ConstantTwist, MuJoCoReference
 from mdgs.models.sgnn import SGNN, SGNNSnap
 
-__all__ = ["MODELS", "LEARNED", "REFERENCES", "Simulator", "State", "Batch", "ModelError", "batch_of", "one_step_error", "get_model"]
+__all__ = ["MODELS", "LEARNED", "REFERENCES", "Simulator", "State", "Batch", "ModelError", "batch_of", "compile_step", "one_step_error",
+           "get_model"]
 
 #: name -> Simulator class: the one registry the CLI, the trainer, the evaluator and the study read.
 #: Learned models first (the paper's method, its ablations, then the peers), then the references.

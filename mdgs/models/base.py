@@ -26,7 +26,7 @@ from torch import nn
 
 from mdgs.data.split import SplitData
 
-__all__ = ["State", "Batch", "Simulator", "ModelError", "batch_of", "one_step_error"]
+__all__ = ["State", "Batch", "Simulator", "ModelError", "batch_of", "compile_step", "one_step_error"]
 
 
 class ModelError(Exception):
@@ -217,6 +217,20 @@ class Simulator(nn.Module):
 
 
 @torch.no_grad()
+def compile_step(model: Simulator) -> Simulator:
+    """Give ``model`` a ``torch.compile``d rollout step (in place; returns the model).
+
+    ``model.step`` becomes one compiled graph per batch shape (``dynamic=False``): the first step
+    of each new batch size compiles (seconds to tens of seconds on a CPU), later steps run the
+    fused kernels. The results are the eager step's (benchmarks/bench_models.py ``--compile``
+    compares the two rollouts). A model whose step does not trace (MuJoCo, autodiff-in-the-step
+    models where compilation is refused) keeps running eagerly wherever dynamo falls back."""
+    if not isinstance(model, Simulator):
+        raise TypeError(f"compile_step takes a Simulator, not {type(model).__name__}")
+    model.step = torch.compile(type(model).step.__get__(model), dynamic=False)
+    return model
+
+
 def one_step_error(model: Simulator, d: SplitData, dev, batch_size: int = 64, max_pairs: int = 0) -> float:
     """Mean :meth:`~mdgs.models.base.Simulator.validation_error` over the pairs of a split (clean inputs)."""
     model.eval()
