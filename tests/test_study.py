@@ -50,6 +50,7 @@ name = "mdgs"
     (GOOD.replace('[[models]]\nname = "mdgs"', '[[models]]\nname = "mdgs"\nset = { hiden = 3 }'), "no setting 'hiden'"),
     (GOOD.replace('[[models]]\nname = "mdgs"', '[[models]]\nname = "mujoco"'), "is a reference"),
     (GOOD.replace('preset = "tiny"', 'preset = "huge"'), "preset 'huge' is unknown"),
+    (GOOD + '[budget]\nselect = "best"\n', "select = 'best' is not one of"),
     (GOOD + "[references]\nmotors = 1\n", "should be of type bool"),
 ])
 def test_malformed_study_file_is_one_sentence_and_exit_2(tmp_path, text, phrase):
@@ -256,6 +257,26 @@ def test_a_model_that_trains_as_another_shares_its_run(tmp_path):
     assert [p.name for p in (tmp_path / "o" / "runs").iterdir()] == [lines["sgnn"]["cell"]]  # one run
     assert lines["sgnn"]["one_step_mse"] == lines["sgnn-snap"]["one_step_mse"]  # same weights, same one step
     assert lines["sgnn"]["sets"]["test"]["pos_mse_t40"] != lines["sgnn-snap"]["sets"]["test"]["pos_mse_t40"]
+
+
+def test_a_selection_rule_trains_its_own_cells_and_says_which_epoch_it_evaluated(tmp_path):
+    """[budget] select = "rollout": the learned cell's key differs from the same study's at "last"
+    (another comparison), its line names the evaluated epoch, and that epoch is the run's lowest
+    validation rollout score."""
+    import dataclasses
+
+    text = GOOD + "[budget]\nepochs = 3\nmax_steps = 2\nbatch_size = 2\nvalid_max_pairs = 8\nselect = \"rollout\"\n"
+    text = text.replace("[study]", "[study]\nlong_frames = 0\nsensitivity = 0.0")
+    study = load_study(_write(tmp_path, text))
+    last = dataclasses.replace(study, budget=dataclasses.replace(study.budget, select="last"))
+    learned = [c for c in cells_of(study) if c.kind == "learned"]
+    assert [c.key(study) for c in learned] != [c.key(last) for c in learned]
+    res = runner.invoke(app, ["study", str(study.path), "--out", str(tmp_path / "o"), "--no-report"])
+    assert res.exit_code == 0, res.output
+    (ln,) = [ln for ln in read_results(tmp_path / "o") if ln["kind"] == "learned"]
+    hist = json.loads((tmp_path / "o" / "runs" / ln["cell"] / "metrics.json").read_text())
+    assert ln["train"]["select"] == "rollout"
+    assert ln["train"]["evaluated_epoch"] == min(hist, key=lambda h: h["valid_rollout"])["epoch"]
 
 
 def test_a_model_revision_makes_its_cells_stale_and_no_others(monkeypatch):

@@ -270,6 +270,8 @@ def _run_cell(study: StudyConfig, out: Path, cell: Cell, progress, t0: float) ->
                       "train_seconds": float(sum(h["train_seconds"] for h in hist)),
                       "wall_seconds_this_run": time.perf_counter() - t1,
                       "valid_mse_last": hist[-1]["valid_mse"] if hist else None}
+        if b.select != "last":  # which epoch's weights this cell evaluates
+            train_info["select"], train_info["evaluated_epoch"] = b.select, state["evaluated_epoch"]
         if trainee is not cell:
             train_info["trained_as"] = {"model": trainee.model, "cell": trainee.key(study)}
         line["one_step_mse"] = one_step_error(model, test, dev)
