@@ -432,7 +432,7 @@ def test_select_keeps_and_evaluates_the_epoch_its_rule_picks(data, tmp_path, sel
     from mdgs.runs import load_run
 
     out = tmp_path / select
-    train(_cfg(data, out, epochs=4, select=select))
+    train(_cfg(data, out, epochs=4, select=select), score=rollout_score)
     hist = json.loads((out / "metrics.json").read_text())
     key = {"rollout": "valid_rollout", "valid": "valid_mse"}[select]
     want = min(hist, key=lambda r: r[key])["epoch"]
@@ -451,6 +451,7 @@ def test_select_cannot_change_on_resume_and_old_runs_resume_as_last(data, run, t
     rule); a checkpoint written before the rule existed resumes as select=last."""
     import shutil
 
+    from mdgs.evaluate.rollout import rollout_score
     from mdgs.runs import RunError
 
     folder = tmp_path / "old"
@@ -460,7 +461,10 @@ def test_select_cannot_change_on_resume_and_old_runs_resume_as_last(data, run, t
     torch.save(state, folder / "checkpoint.pt")
     assert train(_cfg(data, folder)) == {}  # finished, resumable as last: nothing to do, no error
     with pytest.raises(RunError, match="select"):
-        train(_cfg(data, folder, epochs=9, select="rollout"))
+        train(_cfg(data, folder, epochs=9, select="rollout"), score=rollout_score)
+    with pytest.raises(RunError, match="needs the rollout score"):  # the library call without the scorer
+        train(_cfg(data, tmp_path / "new", select="rollout"))
+    assert not (tmp_path / "new").exists()  # refused before anything is written
 
 
 def test_rollout_score_caps_failed_frames_at_the_position_variance(data):

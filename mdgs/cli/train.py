@@ -77,6 +77,13 @@ def train_cmd(
     if last:
         losses = ", ".join(f"L_{k[6:]} {v:.4g}" for k, v in last.items() if k.startswith("train_") and k != "train_seconds")
         typer.echo(f"{out}: epoch {last['epoch'] + 1}/{epochs}, train {losses}, valid one-step MSE {last['valid_mse']:.4g}")
+        if select != "last":
+            import json
+
+            hist = json.loads((out / "metrics.json").read_text())
+            key = {"valid": "valid_mse", "rollout": "valid_rollout"}[select]
+            best = min(hist, key=lambda h: h[key])
+            typer.echo(f"{out}: evaluates the weights of epoch {best['epoch'] + 1} (--select {select}: {key} {best[key]:.4g})")
     else:
         typer.echo(f"{out}: already holds {done.get('finished', '?')} finished epochs (--epochs {epochs}); "
                    "raise --epochs to continue it")
@@ -117,6 +124,7 @@ def _train_with_progress(cfg) -> tuple[dict, dict]:
     """Train with a progress bar -> (last epoch's metrics, ``{"finished": N}`` when nothing was left to do)."""
     from rich.progress import TextColumn
 
+    from mdgs.evaluate.rollout import rollout_score
     from mdgs.train import train
 
     progress, console = progress_bar(TextColumn("{task.fields[loss]}"))
@@ -150,4 +158,4 @@ def _train_with_progress(cfg) -> tuple[dict, dict]:
                 console.print(f"epoch {e['epoch'] + 1}: train {losses}, valid MSE {e['valid_mse']:.4g}, "
                               f"lr {e['lr']:.3g}, {e['seconds']:.1f} s")
 
-        return train(cfg, progress=on), done
+        return train(cfg, progress=on, score=rollout_score), done

@@ -42,7 +42,7 @@ from mdgs.data.split import SplitData, load_split
 from mdgs.evaluate.cost import step_cost
 from mdgs.evaluate.metrics import REPORT_TIMES, frame_of
 from mdgs.evaluate.physics import energy_error, hinge_anchors, joint_separation, rigidity_violation
-from mdgs.evaluate.rollout import divergence_threshold, rollout
+from mdgs.evaluate.rollout import divergence_threshold, rollout, rollout_score
 from mdgs.models import MODELS, ModelError, Simulator, one_step_error
 from mdgs.partition import PartitionParams
 from mdgs.runs import LOCK_NAME, FolderBusy, atomic_json, folder_lock, load_run, resolve_device
@@ -322,7 +322,7 @@ def _train_or_wait(cfg: TrainConfig, progress) -> None:
     (a twin cell in another share), wait for it rather than train the same weights twice."""
     while True:
         try:
-            train(cfg, progress=lambda e: progress({"kind": "train", **e}))
+            train(cfg, progress=lambda e: progress({"kind": "train", **e}), score=rollout_score)
             return
         except FolderBusy:
             progress({"kind": "wait", "run": cfg.out})

@@ -30,7 +30,6 @@ import torch
 from mdgs.data.io import output_problem
 from mdgs.data.schema import DatasetError
 from mdgs.data.split import SplitData, load_splits
-from mdgs.evaluate.rollout import rollout_score
 from mdgs.models import ModelError, batch_of, get_model, one_step_error
 from mdgs.runs import (
     RunError,
@@ -96,8 +95,8 @@ class TrainConfig:
     select
         which epoch's weights the run keeps for evaluation: ``"last"`` (default; every study so
         far), ``"valid"`` (lowest one-step validation error) or ``"rollout"`` (lowest validation
-        rollout score, :func:`mdgs.evaluate.rollout.rollout_score`: position MSE over every frame
-        of every validation trajectory, capped at the failure threshold). The same rule for every
+        rollout score, :func:`mdgs.evaluate.rollout.rollout_score` passed to :func:`train`: position
+        MSE over every frame of every validation trajectory, capped at the failure threshold). The same rule for every
         model of a comparison (``../shared/baselines.md``: best checkpoint on the validation split).
     model
         the model's config (``MODELS[model_name].Config``); ``None``: its defaults.
@@ -167,11 +166,15 @@ def _load_splits(cfg: TrainConfig, splits: dict | None) -> tuple[SplitData, Spli
     return tr, va
 
 
-def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, splits: dict | None = None) -> dict:
+def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, splits: dict | None = None,
+          score: Callable[[Any, SplitData, Any], float] | None = None) -> dict:
     """Train (or resume) the run ``cfg.out``; returns the last epoch's metrics.
 
     ``progress(event)`` is called with ``{"kind": "start"|"step"|"epoch", ...}``.
     ``splits`` (``{"train": SplitData, "valid": SplitData}``) bypasses the files.
+    ``score(model, valid_split, device) -> float``: the validation rollout score that
+    ``select="rollout"`` minimises (:func:`mdgs.evaluate.rollout.rollout_score`; passed in, since
+    training and evaluation do not import each other; ``mdgs train`` and ``mdgs study`` pass it).
     Raises :class:`~mdgs.runs.RunError`, :class:`~mdgs.models.ModelError` or
     :class:`~mdgs.data.schema.DatasetError` for user errors, before anything is written.
     """
@@ -182,6 +185,8 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, spli
                          f"evaluate it directly with `mdgs evaluate --model {cfg.model_name} --data DIR`")
     if cfg.lr is None:
         cfg = replace(cfg, lr=cls.default_lr)
+    if cfg.select == "rollout" and score is None:
+        raise RunError("select='rollout' needs the rollout score: call train(cfg, score=mdgs.evaluate.rollout.rollout_score)")
     problem = output_problem(cfg.out, "--out")
     if problem:  # before reading any data: a run that cannot be written fails at once
         raise RunError(problem)
@@ -191,12 +196,12 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, spli
         dev = resolve_device(device)
         # rank 0 writes the run folder; it holds the folder's lock, so no other process writes it too
         with folder_lock(cfg.out, f"mdgs train ({cfg.model_name})") if dist_.is_main else nullcontext():
-            return _train(cfg, progress, tr, va, cls, dist_, dev)
+            return _train(cfg, progress, tr, va, cls, dist_, dev, score)
     finally:
         teardown(dist_)
 
 
-def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_, dev) -> dict:
+def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_, dev, score=None) -> dict:
     out = Path(cfg.out)
     if not dist_.is_main:  # one progress report per job
         progress = lambda e: None  # noqa: E731
@@ -299,7 +304,7 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
                "valid_mse": val, "lr": opt.param_groups[0]["lr"], "steps": n_steps,
                "train_seconds": train_s}
         if cfg.select == "rollout" and dist_.is_main:
-            rec["valid_rollout"] = rollout_score(model, va, dev)
+            rec["valid_rollout"] = score(model, va, dev)
         rec["seconds"] = time.perf_counter() - t0
         history.append(rec)
         best = _selected(history, cfg.select) if dist_.is_main else None  # the rollout score is rank 0's
