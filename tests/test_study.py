@@ -224,10 +224,10 @@ def test_a_cell_with_an_internal_error_is_recorded_and_retried(tmp_path, monkeyp
     study = load_study(path)
     real = runner_mod._run_cell
 
-    def broken(study_, out, cell, progress, t0):
+    def broken(study_, out, cell, progress, t0, wait=True):
         if cell.model == "constant-twist":
             raise RuntimeError("a bug in one cell")
-        return real(study_, out, cell, progress, t0)
+        return real(study_, out, cell, progress, t0, wait)
 
     monkeypatch.setattr(runner_mod, "_run_cell", broken)
     res = run_study(study, tmp_path / "o")
@@ -240,6 +240,41 @@ def test_a_cell_with_an_internal_error_is_recorded_and_retried(tmp_path, monkeyp
     assert res["ran"] == 1  # only the errored cell is retried
     lines = read_results(tmp_path / "o")
     assert len(lines) == 3 and all(ln["status"] == "ok" for ln in lines)
+
+
+def test_a_cell_whose_run_another_share_trains_goes_last_and_runs_once(tmp_path, monkeypatch):
+    """While another share holds the learned cell's run (its lock), this share runs its other cells
+    first and comes back to it, waiting only when it is the last cell left; each cell once."""
+    import mdgs.study.runner as runner_mod
+    from mdgs.runs import folder_lock
+    from mdgs.study import run_study
+
+    path = _write(tmp_path, GOOD.replace('seeds = [0]', 'seeds = [0, 1]\nlong_frames = 0\nsensitivity = 0')
+                  + "\n[budget]\nepochs = 1\nmax_steps = 1\nbatch_size = 4\nvalid_max_pairs = 4\n"
+                  + "[references]\nmujoco_dt_factors = [1]\n")
+    study = load_study(path)
+    learned = next(c for c in cells_of(study) if c.kind == "learned")  # seed 0; seed 1 follows it
+    assert cells_of(study).index(learned) < len(cells_of(study)) - 1  # not last in the study's own order
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "study.json").write_text(json.dumps({"name": study.name}))  # another share made it
+    run = tmp_path / "o" / "runs" / learned.key(study)
+    held = folder_lock(run, "another share")
+    lock = held.__enter__()
+    real, calls = runner_mod._run_cell, []
+
+    def spy(study_, out, cell, progress, t0, wait=True):
+        calls.append((cell.kind, cell.seed, wait))
+        if cell == learned and wait:  # the other share finishes: release the run
+            held.__exit__(None, None, None)
+        return real(study_, out, cell, progress, t0, wait)
+
+    monkeypatch.setattr(runner_mod, "_run_cell", spy)
+    res = run_study(study, tmp_path / "o")
+    assert lock is not None and res["ran"] == len(cells_of(study))
+    tries = [c for c in calls if c[:2] == ("learned", 0)]
+    assert tries == [("learned", 0, False), ("learned", 0, True)] and calls[-1] == ("learned", 0, True)
+    keys = [ln["cell"] for ln in read_results(tmp_path / "o")]
+    assert keys[-1] == learned.key(study) and len(keys) == len(set(keys)) == len(cells_of(study))
 
 
 def test_a_model_that_trains_as_another_shares_its_run(tmp_path):

@@ -46,14 +46,18 @@ def study_cmd(
             overall = bar.add_task("cells", total=None)
             inner = bar.add_task("", total=None, visible=False)
 
+            plan = {"done": 0}
+
             def on(e: dict) -> None:
                 if e["kind"] == "plan":
-                    bar.update(overall, total=e["cells"], completed=e["cells"] - e["todo"])
+                    plan["done"] = e["cells"] - e["todo"]
+                    bar.update(overall, total=e["cells"], completed=plan["done"])
                     console.print(f"study {study.name}: {e['cells']} cells in this share, {e['todo']} to run")
-                elif e["kind"] == "cell":
-                    if e["index"]:
-                        bar.advance(overall)
+                elif e["kind"] == "cell":  # index: cells of this run finished so far
+                    bar.update(overall, completed=plan["done"] + e["index"])
                     bar.update(inner, description=e["label"], total=None, completed=0, visible=True)
+                elif e["kind"] == "defer":
+                    console.print(f"  {e['label']}: another share is training its run; back to it later")
                 elif e["kind"] == "train" and "steps" in e and "step" in e:
                     bar.update(inner, description=f"  epoch {e['epoch'] + 1}", total=e["steps"], completed=e["step"])
                 elif e["kind"] == "evaluate":
@@ -62,8 +66,7 @@ def study_cmd(
                     bar.update(inner, description=f"  waiting for another share training {e['run']}", total=None)
 
             res = run_study(study, out, share, progress=on)
-            if res["ran"]:
-                bar.advance(overall)
+            bar.update(overall, completed=res["done"] + res["ran"])
     except (StudyError, DatasetError, RunError, ModelError, ValueError) as e:
         fail(str(e))
     except KeyboardInterrupt:

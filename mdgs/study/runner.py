@@ -215,7 +215,12 @@ def _fingerprint(folder: Path, split: str) -> str:
 
 # --------------------------------------------------------------------------- cells
 
-def run_cell(study: StudyConfig, out: Path, cell: Cell, progress: Callable[[dict], None]) -> dict:
+class CellBusy(Exception):
+    """The run a cell evaluates is being trained by another share of the study (``wait=False``)."""
+
+
+def run_cell(study: StudyConfig, out: Path, cell: Cell, progress: Callable[[dict], None],
+             wait: bool = True) -> dict:
     """Run one cell -> its results line (a dict).
 
     A cell that cannot run is still a finished cell with a line saying why, never a crash of the
@@ -223,16 +228,18 @@ def run_cell(study: StudyConfig, out: Path, cell: Cell, progress: Callable[[dict
     MuJoCo timestep factor that does not divide the data's substeps), ``failed`` (training
     diverged: the model counts as failed on every trajectory of the cell) or ``error`` (an
     unexpected exception, i.e. a bug: the line keeps its message and the last traceback lines,
-    the report lists it, and a rerun retries the cell).
+    the report lists it, and a rerun retries the cell). ``wait=False``: raise :class:`CellBusy`
+    instead of waiting while another share trains the cell's run (a twin cell, e.g. ``sgnn-snap``
+    of ``sgnn``), so the share can run other cells meanwhile.
     """
     t0 = time.perf_counter()
     try:
-        return _run_cell(study, out, cell, progress, t0)
+        return _run_cell(study, out, cell, progress, t0, wait)
     except ModelError as e:
         status, reason = "not applicable", str(e)
     except TrainingError as e:
         status, reason = "failed", str(e)
-    except (KeyboardInterrupt, StudyError):
+    except (KeyboardInterrupt, StudyError, CellBusy):
         raise
     except Exception as e:  # noqa: BLE001 - a bug in one cell must not stop a study of hundreds
         import traceback
@@ -244,7 +251,7 @@ def run_cell(study: StudyConfig, out: Path, cell: Cell, progress: Callable[[dict
             "wall_seconds": time.perf_counter() - t0}
 
 
-def _run_cell(study: StudyConfig, out: Path, cell: Cell, progress, t0: float) -> dict:
+def _run_cell(study: StudyConfig, out: Path, cell: Cell, progress, t0: float, wait: bool = True) -> dict:
     dev = resolve_device(study.device)
     data = _dataset(study, out, cell.scene, cell.refine)
     test = load_split(data / "test.h5")
@@ -261,7 +268,7 @@ def _run_cell(study: StudyConfig, out: Path, cell: Cell, progress, t0: float) ->
                           batch_size=b.batch_size, seed=cell.seed, device=study.device, max_steps=b.max_steps,
                           valid_max_pairs=b.valid_max_pairs, select=b.select, model=tcls.Config(**dict(cell.settings)))
         t1 = time.perf_counter()
-        _train_or_wait(cfg, progress)
+        _train_or_wait(cfg, progress, wait)
         model, state = load_run(run, dev)
         if trainee is not cell:
             model = cls.from_trained(model)
@@ -317,14 +324,17 @@ def _training_cell(study: StudyConfig, cell: Cell) -> Cell:
 WAIT_SECONDS = 30.0
 
 
-def _train_or_wait(cfg: TrainConfig, progress) -> None:
+def _train_or_wait(cfg: TrainConfig, progress, wait: bool = True) -> None:
     """Train (or resume, or find finished) the run ``cfg.out``; while another process holds its lock
-    (a twin cell in another share), wait for it rather than train the same weights twice."""
+    (a twin cell in another share), wait for it rather than train the same weights twice, or with
+    ``wait=False`` raise :class:`CellBusy` at once."""
     while True:
         try:
             train(cfg, progress=lambda e: progress({"kind": "train", **e}), score=rollout_score)
             return
         except FolderBusy:
+            if not wait:
+                raise CellBusy(cfg.out) from None
             progress({"kind": "wait", "run": cfg.out})
             time.sleep(WAIT_SECONDS)
 
@@ -450,8 +460,17 @@ def _run_share(study: StudyConfig, out: Path, share: tuple[int, int], progress) 
     todo = [c for c in mine if c.key(study) not in done]
     progress({"kind": "plan", "cells": len(mine), "todo": len(todo)})
     torch.set_num_threads(max(1, torch.get_num_threads()))
-    for k, cell in enumerate(todo):
+    pending, k = list(todo), 0
+    while pending:  # a cell whose run another share is training goes to the back of the queue
+        cell = pending.pop(0)
         progress({"kind": "cell", "index": k, "total": len(todo), "label": f"{cell.scene.name} {cell.label} "
                   f"seed {cell.seed}" + (f" refine {cell.refine}" if cell.refine != 1 else "")})
-        _append(path, run_cell(study, out, cell, progress))
+        try:
+            line = run_cell(study, out, cell, progress, wait=not pending)  # the last one left waits
+        except CellBusy:
+            progress({"kind": "defer", "label": cell.label})
+            pending.append(cell)
+            continue
+        _append(path, line)
+        k += 1
     return {"cells": len(mine), "done": len(mine) - len(todo), "ran": len(todo)}
