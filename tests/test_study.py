@@ -277,6 +277,41 @@ def test_a_cell_whose_run_another_share_trains_goes_last_and_runs_once(tmp_path,
     assert keys[-1] == learned.key(study) and len(keys) == len(set(keys)) == len(cells_of(study))
 
 
+def test_processes_with_overlapping_shares_never_run_a_cell_twice(tmp_path, monkeypatch):
+    """Another process holds cell b (its cell lock) while this one runs a, and finishes b meanwhile:
+    this process defers b, then finds b's line and skips it; every cell has one line."""
+    import mdgs.study.runner as runner_mod
+    from mdgs.runs import LOCK_NAME, folder_lock
+    from mdgs.study import run_study
+
+    path = _write(tmp_path, GOOD.replace('seeds = [0]', 'seeds = [0]\nlong_frames = 0\nsensitivity = 0')
+                  + "\n[budget]\nepochs = 1\nmax_steps = 1\nbatch_size = 4\nvalid_max_pairs = 4\n"
+                  + "[references]\nmujoco_dt_factors = [1, 2]\n")
+    study = load_study(path)
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "study.json").write_text(json.dumps({"name": study.name}))
+    a, b = cells_of(study)[:2]
+    held = folder_lock(out, "another process", name=f"{LOCK_NAME}-cell-{b.key(study)}")
+    held.__enter__()
+    real, ran = runner_mod.run_cell, []
+
+    def spy(study_, out_, cell, progress, wait=True):
+        ran.append(cell.key(study))
+        line = real(study_, out_, cell, progress, wait)
+        if cell == a:  # meanwhile the other process finishes b and lets it go
+            runner_mod._append(out_ / "results-3-of-4.jsonl", real(study_, out_, b, lambda e: None))
+            held.__exit__(None, None, None)
+        return line
+
+    monkeypatch.setattr(runner_mod, "run_cell", spy)
+    res = run_study(study, out)
+    keys = [ln["cell"] for ln in read_results(out)]
+    assert b.key(study) not in ran and ran[0] == a.key(study)
+    assert sorted(keys) == sorted(c.key(study) for c in cells_of(study))  # each once
+    assert res == {"cells": len(cells_of(study)), "done": 1, "ran": len(cells_of(study)) - 1}
+
+
 def test_a_model_that_trains_as_another_shares_its_run(tmp_path):
     """sgnn-snap trains to sgnn's weights (the snap acts at rollout only): the study trains once."""
     text = GOOD.replace('[[models]]\nname = "mdgs"', '[[models]]\nname = "sgnn"\nset = { hidden = 8, p_step = 1 }\n'

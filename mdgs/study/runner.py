@@ -451,26 +451,43 @@ def run_study(study: StudyConfig, out: str | os.PathLike, share: tuple[int, int]
         return _run_share(study, out, share, progress)
 
 
+def _finished(out: Path) -> set[str]:
+    """Keys of the cells some results file of ``out`` holds (an ``error`` line is retried, not finished)."""
+    return {r["cell"] for r in read_results(out) if r.get("status") != "error"}
+
+
 def _run_share(study: StudyConfig, out: Path, share: tuple[int, int], progress) -> dict:
+    """Run the share's unfinished cells in study order. Each cell is run under its own lock
+    (``OUT/.lock-cell-<key>``) after a fresh look at the results files, so processes whose shares
+    overlap (``--cells 1/2`` beside ``--cells 3/4``, a job array resubmitted with another N) never run
+    a cell twice; a cell that another process holds, or whose run another process is training, goes
+    to the back of the queue, and the last cell left waits for it."""
     path = _results_path(out, share)
     _repair(path)
-    done = {r["cell"] for r in read_results(out) if r.get("status") != "error"}  # errors are retried
     i, n = share
     mine = [c for k, c in enumerate(cells_of(study)) if k % n == i]
-    todo = [c for c in mine if c.key(study) not in done]
+    done0 = _finished(out)
+    todo = [c for c in mine if c.key(study) not in done0]
     progress({"kind": "plan", "cells": len(mine), "todo": len(todo)})
     torch.set_num_threads(max(1, torch.get_num_threads()))
-    pending, k = list(todo), 0
-    while pending:  # a cell whose run another share is training goes to the back of the queue
+    pending, ran, elsewhere = list(todo), 0, 0
+    while pending:
         cell = pending.pop(0)
-        progress({"kind": "cell", "index": k, "total": len(todo), "label": f"{cell.scene.name} {cell.label} "
-                  f"seed {cell.seed}" + (f" refine {cell.refine}" if cell.refine != 1 else "")})
+        key = cell.key(study)
         try:
-            line = run_cell(study, out, cell, progress, wait=not pending)  # the last one left waits
-        except CellBusy:
+            with folder_lock(out, f"mdgs study {study.name} cell {key}", name=f"{LOCK_NAME}-cell-{key}"):
+                if key in _finished(out):  # another process finished it meanwhile
+                    elsewhere += 1
+                    continue
+                progress({"kind": "cell", "index": ran + elsewhere, "total": len(todo),
+                          "label": f"{cell.scene.name} {cell.label} seed {cell.seed}"
+                                   + (f" refine {cell.refine}" if cell.refine != 1 else "")})
+                line = run_cell(study, out, cell, progress, wait=not pending)  # the last one left waits
+                _append(path, line)
+                ran += 1
+        except (CellBusy, FolderBusy):  # its run, or the cell itself, is another process's now
             progress({"kind": "defer", "label": cell.label})
+            if not pending:
+                time.sleep(WAIT_SECONDS)
             pending.append(cell)
-            continue
-        _append(path, line)
-        k += 1
-    return {"cells": len(mine), "done": len(mine) - len(todo), "ran": len(todo)}
+    return {"cells": len(mine), "done": len(mine) - len(todo) + elsewhere, "ran": ran}
