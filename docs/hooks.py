@@ -14,6 +14,7 @@ Placeholders (in any ``docs/*.md``)::
     {{ cli }}          the reference of every ``mdgs`` command, read from the typer app
     {{ exit_codes }}   the exit-code table of every command
     {{ results_status }} what the committed study holds: cells per model and scene, seeds
+    {{ results_verdict }} the committed study's "Who wins, per scene" table
     {{ mjcf:PATH }}    Kane's equations of the MJCF file PATH (relative to the repository
                        root) derived by ``kane.mjcf.from_mjcf``, with the engine residuals
 
@@ -38,7 +39,7 @@ from mkdocs.exceptions import PluginError
 
 log = logging.getLogger("mkdocs.hooks.mdgs")
 
-_PLACEHOLDER = re.compile(r"\{\{\s*(latex|claim):([A-Za-z0-9_.]+)\s*\}\}|\{\{\s*(report|findings|summary|cli|exit_codes|normalisation|results_status)\s*\}\}")
+_PLACEHOLDER = re.compile(r"\{\{\s*(latex|claim):([A-Za-z0-9_.]+)\s*\}\}|\{\{\s*(report|findings|summary|cli|exit_codes|normalisation|results_status|results_verdict)\s*\}\}")
 _state: dict = {}
 
 # --------------------------------------------------------------------------- sources
@@ -445,6 +446,19 @@ def _results_status(root: str) -> str:
     return out
 
 
+def _results_verdict(root: str) -> str:
+    """The committed study's "Who wins, per scene" table (:mod:`mdgs.study.tables`), as a stacked
+    HTML table (one card per scene on a phone)."""
+    from mdgs.study.runner import read_results
+    from mdgs.study.tables import _verdict_table
+
+    folder = os.path.join(root, "docs", "results", "small")
+    t = _verdict_table(read_results(folder, usable=True)) if os.path.isdir(folder) else None
+    if t is None:
+        return "<p>No finished learned and reference cells are committed yet.</p>"
+    return _table(t.header, [[html.escape(c) for c in r] for r in t.rows], "stack") + f"\n<p>{html.escape(t.note)}</p>"
+
+
 # --------------------------------------------------------------------------- MJCF
 
 
@@ -524,6 +538,8 @@ def on_page_markdown(markdown: str, page, config, files, **kwargs) -> str:
             return _claim_block(cid)
         if name == "results_status":
             return _results_status(root)
+        if name == "results_verdict":
+            return _results_verdict(root)
         return {"report": _report_block, "findings": _findings_block, "summary": _summary_block, "cli": _cli_block,
                 "exit_codes": _exit_codes_block, "normalisation": _normalisation_block}[name]()
 
