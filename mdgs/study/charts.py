@@ -45,55 +45,83 @@ def _grid(n):
     return math.ceil(n / cols), cols
 
 
+#: Markers of the non-learned references other than MuJoCo (grey), so each can be told apart.
+_REF_MARKERS = {"constant twist": "s", "constant twist + joints": "D", "constant twist + motors": "^",
+                "constant twist + motors + joints": "v"}
+
+
 def speed_accuracy(lines, path: Path) -> None:
+    """One panel per scene; one legend for the figure, each model in the same colour on every panel.
+    Errors far below everything else (MuJoCo at the data's own timestep reproduces the data to
+    round-off) are drawn at the bottom edge as a downward triangle, so they do not squash the axis."""
     plt = _plt()
     scenes = _scenes(lines)
     rows, cols = _grid(len(scenes))
-    fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, 4.2 * rows), squeeze=False)
+    learned = []
+    for scene in scenes:
+        for lbl, p in _points(lines, scene).items():
+            if p[0] != "reference" and lbl not in learned:
+                learned.append(lbl)
+    palette = ["C0", "C1", "C2", "C3", "C4", "C5", "C6", "C8", "C9", "#7b4173", "#637939", "#843c39"]  # no grey
+    colour = {lbl: palette[i % len(palette)] for i, lbl in enumerate(learned)}
+    legend_rows = -(-(len(learned) + 10) // 4)  # learned rows + references, floor, front, notes; 4 columns
+    fig_h = 4.2 * rows + 0.17 * legend_rows + 0.2
+    fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, fig_h), squeeze=False)
+    handles: dict = {}
     for ax, scene in zip(axes.flat, scenes, strict=False):
         pts = _points(lines, scene)
         front = _pareto(pts)
+        fl = _floor(lines, scene)
+        errs = [p[3] for lbl, p in pts.items() if p[3] is not None and p[3] > 0 and lbl != "mujoco dt x1"]
+        lo = min(errs + ([max(fl[0] - fl[1], fl[0] * 0.5)] if fl else [])) / 10 if errs else None
+
+        def y(e, lo=lo):
+            return e if lo is None or e >= lo else lo
         mj = sorted(((lbl, p) for lbl, p in pts.items() if lbl.startswith("mujoco dt x")),
                     key=lambda kv: int(kv[0].split("x")[-1]))
         if mj:
-            ax.plot([p[1] for _, p in mj], [p[3] for _, p in mj], "-o", color="0.35", ms=4, label="MuJoCo, dt x1 ... x"
-                    + mj[-1][0].split("x")[-1])
+            (h,) = ax.plot([p[1] for _, p in mj], [y(p[3]) for _, p in mj], "-o", color="0.35", ms=4)
+            handles.setdefault("MuJoCo at 1, 2, 5, 10, 20 x its timestep", h)
             for lbl, p in mj:
-                ax.annotate(lbl.split(" ")[-1], (p[1], p[3]), fontsize=6, color="0.35", xytext=(3, 3),
-                            textcoords="offset points")
-        k = 0
+                clipped = lo is not None and p[3] < lo
+                if clipped:
+                    ax.plot([p[1]], [lo], "v", color="0.35", ms=7)
+                ax.annotate(lbl.split(" ")[-1] + (f" ({p[3]:.0e})" if clipped else ""), (p[1], y(p[3])), fontsize=6,
+                            color="0.35", xytext=(3, 3), textcoords="offset points")
         for lbl, (kind, c, cs, e, es, failed) in pts.items():
             if lbl.startswith("mujoco dt x"):
                 continue
-            if e is None:
-                col = f"C{k}"
-                k += 1
-                ax.plot([c], [1], marker="x", ms=9, color=col, transform=ax.get_xaxis_transform(), clip_on=False,
-                        label=f"{lbl} (failed on every trajectory by t = 110)")
-                continue
             if kind == "reference":
-                ax.plot([c], [e], "s", color="0.6", label=lbl)
+                (h,) = ax.plot([c], [y(e)], _REF_MARKERS.get(lbl, "s"), color="0.6", ms=6)
+                handles.setdefault(lbl, h)
                 continue
-            col = f"C{k}"
-            k += 1
-            ax.errorbar([c], [e], xerr=[cs], yerr=[es], fmt="o", color=col, mfc="none" if failed else col,
-                        label=lbl + (" (failed on some)" if failed else ""))
+            col = colour[lbl]
+            if e is None:
+                ax.plot([c], [1], marker="x", ms=9, color=col, transform=ax.get_xaxis_transform(), clip_on=False)
+                handles.setdefault(f"{lbl} (x at the top: failed on every trajectory by t = 110)", ax.plot([], [], "x", color=col)[0])
+                continue
+            h = ax.errorbar([c], [y(e)], xerr=[cs], yerr=[[min(es, 0.9 * y(e))], [es]], fmt="o", color=col,
+                            mfc="none" if failed else col)  # on a log axis a spread above the mean stops short of 0
+            handles.setdefault(lbl, ax.plot([], [], "o", color=col)[0] if failed else h)
         for lbl in front:
-            ax.plot([pts[lbl][1]], [pts[lbl][3]], "o", ms=14, mfc="none", mec="k", lw=0.8)
-        fl = _floor(lines, scene)
+            ax.plot([pts[lbl][1]], [y(pts[lbl][3])], "o", ms=14, mfc="none", mec="k", lw=0.8)
         if fl is not None:
-            ax.axhspan(max(fl[0] - fl[1], fl[0] * 0.5), fl[0] + fl[1], color="orange", alpha=0.2,
-                       label="sensitivity floor")
+            h = ax.axhspan(max(fl[0] - fl[1], fl[0] * 0.5), fl[0] + fl[1], color="orange", alpha=0.2)
+            handles.setdefault("sensitivity floor (MuJoCo from perturbed initial velocities)", h)
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_title(scene, fontsize=9)
         ax.set_xlabel("cost: ms per simulated frame, 1 trajectory (log)")
         ax.set_ylabel("position MSE at t = 110 (m$^2$, log)")
-        ax.plot([], [], "o", ms=10, mfc="none", mec="k", label="Pareto front")
-        ax.legend(fontsize=6)
+    handles.setdefault("Pareto front (circled)", plt.Line2D([], [], marker="o", ms=10, mfc="none", mec="k", ls=""))
+    handles.setdefault("hollow: failed on some trajectories; \u25bc: below the axis (value in brackets)",
+                       plt.Line2D([], [], marker="o", mfc="none", mec="0.3", ls=""))
     for ax in list(axes.flat)[len(scenes):]:
         ax.axis("off")
-    fig.tight_layout()
+    ncol = 4
+    fig.legend(list(handles.values()), list(handles.keys()), loc="lower center", ncol=ncol, fontsize=7, frameon=False)
+    used_rows = -(-len(handles) // ncol)
+    fig.tight_layout(rect=(0, (0.17 * used_rows + 0.15) / fig_h, 1, 1))
     atomic_savefig(fig, path.with_suffix(".png"), dpi=110)
     atomic_savefig(fig, path.with_suffix(".svg"))
     plt.close(fig)
