@@ -57,13 +57,9 @@ def speed_accuracy(lines, path: Path) -> None:
     plt = _plt()
     scenes = _scenes(lines)
     rows, cols = _grid(len(scenes))
-    learned = []
-    for scene in scenes:
-        for lbl, p in _points(lines, scene).items():
-            if p[0] != "reference" and lbl not in learned:
-                learned.append(lbl)
-    palette = ["C0", "C1", "C2", "C3", "C4", "C5", "C6", "C8", "C9", "#7b4173", "#637939", "#843c39"]  # no grey
-    colour = {lbl: palette[i % len(palette)] for i, lbl in enumerate(learned)}
+    styles = _styles(lines)
+    learned = [lbl for lbl, st in styles.items() if st["ls"] == "-"]
+    colour = {lbl: styles[lbl]["color"] for lbl in learned}
     legend_rows = -(-(len(learned) + 10) // 4)  # learned rows + references, floor, front, notes; 4 columns
     fig_h = 4.2 * rows + 0.17 * legend_rows + 0.2
     fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, fig_h), squeeze=False)
@@ -137,27 +133,50 @@ def _curve_mean(lns, key):
             return np.nanmean(np.stack(arrs), 0)
 
 
+#: Colours of the learned rows in every chart (no grey: the references are grey).
+_PALETTE = ["C0", "C1", "C2", "C3", "C4", "C5", "C6", "C8", "C9", "#7b4173", "#637939", "#843c39"]
+
+
+def _styles(lines) -> dict:
+    """``{label: plot kwargs}`` for every row of the study, the same on every panel: learned rows in
+    colour (study order), references in grey with their own dash pattern."""
+    out, n_learned, n_ref = {}, 0, 0
+    for ln in lines:
+        lbl = ln["label"]
+        if lbl in out or ln["kind"] == "resolution":
+            continue
+        if ln["kind"] == "learned":
+            out[lbl] = dict(color=_PALETTE[n_learned % len(_PALETTE)], ls="-", lw=1.5)
+            n_learned += 1
+        else:  # 3 greys x 4 dash patterns: twelve references told apart
+            out[lbl] = dict(color=("0.15", "0.45", "0.65")[n_ref % 3], ls=("--", ":", "-.", (0, (5, 1)))[(n_ref // 3) % 4],
+                            lw=1.1)
+            n_ref += 1
+    return out
+
+
 def stability(lines, path: Path) -> bool:
+    """Per scene: the fraction of long test trajectories within the failure threshold, then the energy
+    error and the joint separation of the survivors; one legend for the figure."""
     plt = _plt()
     scenes = [s for s in _scenes(lines) if any(ln["scene"] == s and "long" in ln["sets"] for ln in lines)]
     if not scenes:
         return False
-    fig, axes = plt.subplots(len(scenes), 3, figsize=(15, 3.6 * len(scenes)), squeeze=False)
+    styles = _styles([ln for ln in lines if "long" in ln["sets"]])
+    legend_rows = -(-len(styles) // 5)
+    fig_h = 3.6 * len(scenes) + 0.17 * legend_rows + 0.2
+    fig, axes = plt.subplots(len(scenes), 3, figsize=(15, fig_h), squeeze=False)
+    handles: dict = {}
     for row, scene in zip(axes, scenes, strict=True):
         groups: dict = {}
         for ln in lines:
             if ln["scene"] == scene and "long" in ln["sets"]:
                 groups.setdefault(ln["label"], []).append(ln)
-        n_ref = 0
-        for k, (label, lns) in enumerate(groups.items()):
+        for label, lns in groups.items():
             frames = np.array(lns[0]["sets"]["long"]["curve_frames"]) + 1
-            ref = lns[0]["kind"] != "learned"
-            if ref:
-                style = dict(color=f"{0.15 + 0.2 * (n_ref % 4):.2f}", ls=("--", ":", "-.", (0, (5, 1)))[n_ref % 4], lw=1.2)
-                n_ref += 1
-            else:
-                style = dict(color=f"C{k}", ls="-", lw=1.5)
-            row[0].plot(frames, _curve_mean(lns, "fraction_within"), label=label, **style)
+            style = styles[label]
+            (h,) = row[0].plot(frames, _curve_mean(lns, "fraction_within"), **style)
+            handles.setdefault(label, h)
             row[1].plot(frames, np.maximum(_curve_mean(lns, "energy_error_J"), 1e-12), **style)
             row[2].plot(frames, np.maximum(1e3 * _curve_mean(lns, "joint_separation_m"), 1e-9), **style)
         thr = lns[0]["sets"]["long"]["failure_threshold_m2"]
@@ -171,8 +190,9 @@ def stability(lines, path: Path) -> bool:
             ax.axvline(110, color="0.7", ls=":", lw=0.8)
         for ax in row[1:]:
             ax.set_yscale("log")
-        row[0].legend(fontsize=6)
-    fig.tight_layout()
+    handles = dict(sorted(handles.items(), key=lambda kv: styles[kv[0]]["ls"] != "-"))  # learned first
+    fig.legend(list(handles.values()), list(handles.keys()), loc="lower center", ncol=5, fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0, (0.17 * -(-len(handles) // 5) + 0.15) / fig_h, 1, 1))
     atomic_savefig(fig, path, dpi=100)
     plt.close(fig)
     return True
