@@ -293,7 +293,10 @@ def _generalization_table(lines) -> list[Table]:
 
 def _stability_table(lines) -> Table | None:
     rows = []
-    for ln_group in _group(lines, lambda ln: "long" in ln["sets"]):
+    scene_order = {sc: i for i, sc in enumerate(_scenes(lines))}
+    groups = sorted(_group(lines, lambda ln: "long" in ln["sets"]),  # per scene: learned rows, then references
+                    key=lambda g: (scene_order[g[0]["scene"]], g[0]["kind"] != "learned"))
+    for ln_group in groups:
         lns = ln_group
         ttf_all, n_all, never, joint, frames = [], 0, 0, [], None
         for ln in lns:
