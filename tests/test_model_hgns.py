@@ -69,3 +69,24 @@ def test_hgns_overfits_two_batches(micro_data):
 
 def test_hgns_cli_end_to_end(micro_data, tmp_path):
     check_cli("hgns", micro_data, tmp_path)
+
+
+def test_hgns_and_lgns_from_the_same_weights_have_the_same_loss(micro_data):
+    """With H = sum |p|^2 / 2m + V and L = sum m |v|^2 / 2 - V from the same MLPs and initial weights,
+    both give the same accelerations, so the acceleration loss (and thus training) is the same; the
+    small study's lgns and hgns rows differ only through the integrator (docs/peers/hgns.md)."""
+    from test_model_lgns import _model
+
+    from mdgs.models.base import batch_of
+    from mdgs.models.hgns import HGNS
+    from mdgs.models.lgns import LGNS
+
+    (lg, d), (hg, _) = _model(LGNS, micro_data), _model(HGNS, micro_data)
+    b = batch_of(d, d.pairs()[:3], "cpu")
+    a, h = lg.losses(b)["mse"], hg.losses(b)["mse"]
+    assert torch.isfinite(a) and float(a) > 0
+    assert float(h) == pytest.approx(float(a), rel=1e-9)
+    with torch.no_grad():  # the rollouts do differ: Verlet against RK4
+        s = lg.initial_state(d, np.arange(2), 0)
+        c = torch.from_numpy(d.ctrl[:2, 0])
+        assert not torch.allclose(lg.step(s, c).x, hg.step(hg.initial_state(d, np.arange(2), 0), c).x, rtol=0, atol=1e-12)
