@@ -25,6 +25,7 @@ import sys
 import numpy as np
 import torch
 
+from mdgs.cli.train import parse_settings
 from mdgs.data.split import load_split
 from mdgs.evaluate.rollout import divergence_threshold, rollout
 from mdgs.models import MODELS
@@ -70,15 +71,7 @@ if sys.argv[1] == "--summary":
     sys.exit(0)
 data, out, seed, epochs = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
 model_name = sys.argv[5] if len(sys.argv) > 5 and "=" not in sys.argv[5] else "mdgs"
-kw = {}
-for a in sys.argv[5:]:
-    if "=" in a:
-        k, v = a.split("=", 1)
-        try:
-            v = json.loads(v)
-        except ValueError:
-            pass
-        kw[k] = v
+kw = parse_settings(MODELS[model_name].Config, [a for a in sys.argv[5:] if "=" in a])  # as `mdgs train --set`
 scene = os.path.basename(os.path.normpath(data))
 run = os.path.join(out, "runs", f"{model_name}-{scene}-s{seed}" + "".join(f"-{k}{v}" for k, v in kw.items()))
 valid, test = load_split(os.path.join(data, "valid.h5")), load_split(os.path.join(data, "test.h5"))

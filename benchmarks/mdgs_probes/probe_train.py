@@ -18,6 +18,7 @@ import time
 import numpy as np
 import torch
 
+from mdgs.cli.train import parse_settings
 from mdgs.data.split import load_split
 from mdgs.evaluate.physics import hinge_anchors
 from mdgs.evaluate.rollout import rollout
@@ -28,14 +29,7 @@ from mdgs.train import TrainConfig, train
 
 tag, scene, seed = sys.argv[1], sys.argv[2], int(sys.argv[3])
 model_name = os.environ.get("MODEL", "mdgs")
-kw = {}
-for a in sys.argv[4:]:
-    k, v = a.split("=", 1)
-    try:
-        v = json.loads(v)
-    except ValueError:
-        pass
-    kw[k] = v
+kw = parse_settings(MODELS[model_name].Config, sys.argv[4:])  # typed as `mdgs train --set` types them
 epochs = int(os.environ.get("EPOCHS", 5))
 data = os.path.join(os.environ["MDGS_PROBE_DATA"], scene)
 OUT = os.environ["MDGS_PROBE_OUT"]
