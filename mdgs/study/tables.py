@@ -158,8 +158,9 @@ def _cell(lns: list[dict], set_name: str, t: int):
     return float(arr.mean()), std, ok, tot
 
 
-def _ratio_cell(lns, refs, set_name, t):
-    """Mean +- std over seeds of run mean / constant-twist mean over the run's surviving trajectories."""
+def _ratios(lns, refs, set_name, t) -> list[float | None] | None:
+    """Per seed: the run's mean / the plain constant-twist reference's mean over the run's surviving
+    trajectories (None where the seed failed everywhere); None without that reference."""
     ref = next((r for r in refs if r["model"] == "constant-twist" and not r.get("settings")), None)  # the plain one
     if ref is None or set_name not in ref["sets"]:
         return None
@@ -172,12 +173,17 @@ def _ratio_cell(lns, refs, set_name, t):
         s = ln["sets"].get(set_name)
         if s is None:
             continue
-        mv = s[f"pos_mse_t{t}"]
-        pairs = [(a, b) for a, b in zip(mv, rv, strict=True) if a is not None and b is not None]
-        if not pairs:
-            ratios.append(None)
-            continue
-        ratios.append(float(np.mean([a for a, _ in pairs]) / max(np.mean([b for _, b in pairs]), 1e-300)))
+        pairs = [(a, b) for a, b in zip(s[f"pos_mse_t{t}"], rv, strict=True) if a is not None and b is not None]
+        ratios.append(float(np.mean([a for a, _ in pairs]) / max(np.mean([b for _, b in pairs]), 1e-300))
+                      if pairs else None)
+    return ratios
+
+
+def _ratio_cell(lns, refs, set_name, t):
+    """Mean +- std over seeds of run mean / constant-twist mean over the run's surviving trajectories."""
+    ratios = _ratios(lns, refs, set_name, t)
+    if ratios is None:
+        return None
     if not ratios:  # no finished cell of this row on this scene yet
         return "-"
     if any(r is None for r in ratios):
@@ -322,22 +328,9 @@ def _stability_table(lines) -> Table | None:
 
 
 def _ratio_mean(lns, refs, t):
-    """Mean over seeds of (run mean / plain constant twist mean on the same trajectories) on the test
-    set; None if any seed failed everywhere or there is no reference."""
-    ref = next((r for r in refs if r["model"] == "constant-twist" and not r.get("settings")), None)
-    if ref is None:
-        return None
-    rv = ref["sets"]["test"][f"pos_mse_t{t}"]
-    out = []
-    for ln in lns:
-        if ln.get("status") == "failed":
-            return None
-        pairs = [(a, b) for a, b in zip(ln["sets"]["test"][f"pos_mse_t{t}"], rv, strict=True)
-                 if a is not None and b is not None]
-        if not pairs:
-            return None
-        out.append(np.mean([a for a, _ in pairs]) / max(np.mean([b for _, b in pairs]), 1e-300))
-    return float(np.mean(out))
+    """Mean over seeds of :func:`_ratios` on the test set; None if any seed failed everywhere."""
+    ratios = _ratios(lns, refs, "test", t)
+    return None if not ratios or any(r is None for r in ratios) else float(np.mean(ratios))
 
 
 def _verdict_table(lines) -> Table | None:
