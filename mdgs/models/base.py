@@ -222,8 +222,9 @@ def compile_step(model: Simulator) -> Simulator:
 
     ``model.step`` becomes one compiled graph per batch shape (``dynamic=False``): the first step
     of each new batch size compiles (seconds to tens of seconds on a CPU), later steps run the
-    fused kernels. The results are the eager step's (benchmarks/bench_models.py ``--compile``
-    compares the two rollouts). A model whose step does not trace (MuJoCo, autodiff-in-the-step
+    fused kernels. The results are the eager step's up to float round-off (bit-identical for MDGS
+    and constant twist, 1e-6 m apart for GNS over a rollout: benchmarks/bench_models.py
+    ``--compile`` compares the two rollouts). A model whose step does not trace (MuJoCo, autodiff-in-the-step
     models where compilation is refused) keeps running eagerly wherever dynamo falls back."""
     if not isinstance(model, Simulator):
         raise TypeError(f"compile_step takes a Simulator, not {type(model).__name__}")
