@@ -134,8 +134,13 @@ class JointSet:
         (default ``seg``'s): built from the scene's ``seg`` [N], ``ref`` [N, 3] and ``mass`` [N] once
         per device and kept while the same scene tensors are passed."""
         device = seg.device if device is None else torch.device(device)
-        sig = tuple((a.data_ptr(), tuple(a.shape), a.dtype) for a in (seg, ref, mass)) + (n_obj,)
         hit = self._cache.get(str(device))
+        if hit is not None and torch.compiler.is_compiling():
+            # a compiled step reads the groups its eager warm-up built (a data-pointer comparison
+            # would split the compiled graph); a rebound scene replaces the entry, and dynamo's guard
+            # on this dict retraces
+            return hit[1]
+        sig = tuple((a.data_ptr(), tuple(a.shape), a.dtype) for a in (seg, ref, mass)) + (n_obj,)
         if hit is not None and hit[0] == sig:
             return hit[1]
         f = dict(dtype=torch.float64, device=device)
