@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import torch
 
-from mdgs.structure import segment_mean
+from mdgs.structure import segment_mean, solve3
 
 __all__ = ["rotation_matrix", "Twist", "twist", "project", "advance", "perturb"]
 
@@ -73,7 +73,7 @@ def _solve(J: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     tr = torch.diagonal(J, dim1=-2, dim2=-1).sum(-1)
     none = tr <= 0  # one-node objects: J is exactly 0 (see twist)
     reg = torch.where(none, 1.0, EPS * tr / 3)[..., None, None] * torch.eye(3, dtype=J.dtype, device=J.device)
-    return torch.where(none[..., None], 0.0, torch.linalg.solve(J + reg, b.unsqueeze(-1)).squeeze(-1))
+    return torch.where(none[..., None], 0.0, solve3(J + reg, b))
 
 
 def _angular(J: torch.Tensor, r: torch.Tensor, u: torch.Tensor, seg: torch.Tensor, n_seg: int,
