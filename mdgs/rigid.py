@@ -89,7 +89,8 @@ def twist(x: torch.Tensor, v: torch.Tensor, seg: torch.Tensor, n_seg: int, mass:
     x, v = x.to(torch.float64), v.to(torch.float64)
     c = segment_mean(x, seg, n_seg, m)
     vc = segment_mean(v, seg, n_seg, m)
-    count = torch.zeros(n_seg, dtype=torch.long, device=seg.device).index_add_(0, seg, torch.ones_like(seg))
+    # node count per object, in float64 (an integer index_add is not fused by torch.compile)
+    count = m.new_zeros(n_seg).index_add_(0, seg, torch.ones_like(m))
     r = torch.where((count[seg] > 1)[None, :, None], x - c[:, seg], 0.0)  # exactly 0 for one-node objects
     rr = (r * r).sum(-1)[..., None, None] * torch.eye(3, dtype=r.dtype, device=r.device) - r.unsqueeze(-1) * r.unsqueeze(-2)
     J = r.new_zeros(r.shape[0], n_seg, 3, 3).index_add_(1, seg, m[None, :, None, None] * rr)
