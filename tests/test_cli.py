@@ -296,3 +296,80 @@ def test_summary_line_and_exit_code():
     assert report.exit_code(s) == 1
     assert report.exit_code(report.summarize([{"verdict": "holds"}])) == 0
     assert report.exit_code(report.summarize([{"verdict": "refuted"}, {"verdict": "error"}])) == 2
+
+
+# --------------------------------------------------------------------------- the docs' command reference
+
+
+def _help_blocks(args: list[str]) -> dict[str, str]:
+    """``mdgs ARGS --help`` as rendered for a terminal: option or argument name -> its row's text
+    (continuation lines joined), read from the box-drawn panels."""
+    from typer.testing import CliRunner
+
+    from mdgs.cli import app
+
+    out = CliRunner().invoke(app, [*args, "--help"], env={"COLUMNS": "400"}).output
+    blocks: dict[str, str] = {}
+    last = None
+    for line in out.splitlines():
+        if not line.startswith("│"):
+            last = None
+            continue
+        body = line.strip("│ ").lstrip("* ").strip()
+        first = body.split(" ", 1)[0]
+        if first.startswith("-") or (first and first.rstrip(".").isidentifier() and "  " in body):
+            last = first.rstrip(".").upper() if not first.startswith("-") else first
+            blocks[last] = body
+        elif last is not None and body:
+            blocks[last] += " " + body
+    return blocks
+
+
+def test_docs_command_reference_matches_help_for_every_parameter():
+    """docs/cli.md's tables (mdgs.cli.reference) against the click parameters and the rendered
+    ``--help`` of every command and of ``mdgs`` itself: same options, value types, defaults and
+    "required" marks."""
+    import typer
+
+    from mdgs.cli import app
+    from mdgs.cli.reference import reference
+
+    group = typer.main.get_command(app)
+    sections = {s.name: s for s in reference()}
+    assert list(sections) == ["mdgs", *[f"mdgs {n}" for n in sorted(group.commands)]]
+    for name, cmd in [("mdgs", group), *[(f"mdgs {n}", c) for n, c in group.commands.items()]]:
+        rows = sections[name].rows
+        params = [p for p in cmd.params if not getattr(p, "hidden", False) and p.name != "help"]
+        assert len(rows) == len(params), name
+        blocks = _help_blocks(name.split()[1:])
+        for p, r in zip(params, rows, strict=True):
+            key = r.names[0].rstrip(".")
+            assert p.required == r.required, (name, key)
+            block = blocks[key]
+            if r.value != "flag":
+                assert r.value in block, (name, key, r.value, block)
+            else:
+                assert p.is_flag, (name, key)
+            assert (f"[default: {r.default}]" in block) == (r.default is not None), (name, key, r.default, block)
+            if r.default is not None and not getattr(p, "is_flag", False):
+                assert r.default == str(p.default), (name, key)
+            assert ("[required]" in block) == r.required, (name, key, block)
+
+
+def test_docs_command_reference_names_types_defaults_and_required():
+    """The cases the site once got wrong: paths and numbers typed, zero defaults shown, train's
+    required options marked, ``mdgs --debug`` listed."""
+    from mdgs.cli.reference import markdown, reference
+
+    rows = {(s.name, r.names[0]): r for s in reference() for r in s.rows}
+    assert rows[("mdgs", "--debug")].value == "flag"
+    assert rows[("mdgs train", "--data")].required and rows[("mdgs train", "--out")].required
+    assert rows[("mdgs train", "--data")].value == "<path>"
+    assert rows[("mdgs train", "--lr")].value == "<float>"
+    assert rows[("mdgs generate", "--n-traj")].value == "<int>"
+    assert rows[("mdgs generate", "--seed")].default == "0"
+    assert rows[("mdgs train", "--max-steps")].default == "0"
+    assert rows[("mdgs train", "--lr")].default is None
+    page = markdown()
+    assert page.index("## mdgs\n") < page.index("## mdgs evaluate")
+    assert "TEXT" not in page and "(optional)" not in page

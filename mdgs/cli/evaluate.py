@@ -41,8 +41,8 @@ def _list_models() -> None:
 
 @app.command("evaluate")
 def evaluate_cmd(
-    runs: list[Path] = typer.Argument(None, help="Run folder(s) from `mdgs train`; several (seeds) give mean +- std."),
-    data: Path = typer.Option(None, "--data", help="Dataset folder (`mdgs generate` output)."),
+    runs: list[Path] = typer.Argument(None, help="Run folder(s) from `mdgs train`; several (seeds) give mean +- std. Required unless --list-models."),
+    data: Path = typer.Option(None, "--data", help="Dataset folder (`mdgs generate` output); required with RUNS."),
     split: str = typer.Option("test", "--split", help="test, valid or train."),
     json_path: Path = typer.Option(None, "--json", help="Report path (default RUN/evaluation-SPLIT.json)."),
     traj: int = typer.Option(0, "--traj", help="Test trajectory drawn in the trajectory plot."),

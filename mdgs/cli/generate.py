@@ -8,7 +8,7 @@ import typer
 
 from mdgs.cli import app, fail, parse_share, progress_bar
 
-_SCENE_HELP = "Scene name (see --list), or 'all' for every scene into OUT/<scene>/."
+_SCENE_HELP = "Scene name (see --list), or 'all' for every scene into OUT/<scene>/; required unless --mjcf or --list."
 
 
 def _list_scenes() -> None:

@@ -11,8 +11,8 @@ from mdgs.cli import app, fail, parse_share, progress_bar
 
 @app.command("study")
 def study_cmd(
-    study_file: Path = typer.Argument(None, help="Study file (TOML), e.g. studies/tiny.toml.", show_default=False),
-    out: Path = typer.Option(None, "--out", help="Output folder (rerun the same command to resume)."),
+    study_file: Path = typer.Argument(None, help="Study file (TOML), e.g. studies/tiny.toml; required unless --report.", show_default=False),
+    out: Path = typer.Option(None, "--out", help="Output folder (rerun the same command to resume); required with STUDY_FILE."),
     cells: str = typer.Option("0/1", "--cells", help="Run only share I of N of the cells (a job array): I/N."),
     report_only: Path = typer.Option(None, "--report", metavar="DIR",
                                      help="Only rebuild the tables and charts of DIR from its results files."),
