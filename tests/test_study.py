@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -407,3 +408,39 @@ def test_who_wins_names_the_front_the_winners_and_the_coarsest_mujoco_that_beats
     assert row[2].startswith("a: 500 (0.5x") and row[3].startswith("a: 1e+03 (0.5x")  # in 10^-3 m^2
     assert row[4] == "a"
     assert row[5].startswith("mujoco dt x2 ")  # x1 is as accurate too, but finer
+
+
+def _committed_small_tables():
+    folder = Path(__file__).resolve().parents[1] / "docs" / "results" / "small"
+    return {t.title: t for t in build_tables(read_results(folder, usable=True))}
+
+
+def test_committed_small_study_has_no_table_4_repeating_table_1():
+    """Every learned row is in Table 1, whose scenes hold Table 4's: a Table 4 there would repeat Table 1
+    row for row, so it is left out (it was once drawn as an identical copy)."""
+    tables = _committed_small_tables()
+    assert "Table 1" in tables
+    assert not [title for title in tables if title.startswith("Table 4")]
+
+
+@pytest.mark.parametrize("title", ["Stability", "Speed"])
+def test_stability_and_speed_rows_group_references_before_learned_rows_per_scene(title):
+    """Per scene (in study order): every reference row, then the learned rows in Table 1's order."""
+    tables = _committed_small_tables()
+    rows = tables[title].rows
+    learned_order = [r[0] for r in tables["Table 1"].rows if not r[0].endswith("(reference)")]
+    learned_order = [re.sub(r"\*\*|</?u>", "", x) for x in learned_order]
+    scenes = []
+    for r in rows:
+        if r[0] not in scenes:
+            scenes.append(r[0])
+    assert [r[0] for r in rows] == sorted((r[0] for r in rows), key=scenes.index)  # one block per scene
+    for sc in scenes:
+        labels = [r[1] for r in rows if r[0] == sc]
+        is_learned = [lbl in learned_order for lbl in labels]
+        assert is_learned == sorted(is_learned), (title, sc, labels)  # references, then learned
+        learned = [lbl for lbl in labels if lbl in learned_order]
+        assert learned == sorted(learned, key=learned_order.index), (title, sc, learned)
+        refs = [lbl for lbl in labels if lbl not in learned_order]
+        mujoco = [int(lbl.split("x")[-1]) for lbl in refs if lbl.startswith("mujoco dt x")]
+        assert mujoco == sorted(mujoco)

@@ -45,6 +45,24 @@ def _grid(n):
     return math.ceil(n / cols), cols
 
 
+#: Legend type size (pt): the charts are shown at a page's column width (about half their width),
+#: where this still reads as about 6 pt.
+LEGEND_FONTSIZE = 13
+
+
+def _legend_below(fig, handles: dict, ncol: int, panels_height: float) -> None:
+    """One legend for the figure under its panels: the figure grows by the legend's measured height
+    (``panels_height`` inches stay for the panels), so the legend never overlaps an axis."""
+    leg = fig.legend(list(handles.values()), list(handles.keys()), loc="lower center", ncol=ncol,
+                     fontsize=LEGEND_FONTSIZE, frameon=False, handlelength=2.6, columnspacing=1.6)
+    for line in leg.get_lines():
+        line.set_linewidth(max(line.get_linewidth(), 2.2))
+    fig.canvas.draw()
+    height = leg.get_window_extent().height / fig.dpi + 0.25  # inches
+    fig.set_size_inches(fig.get_figwidth(), panels_height + height)
+    fig.tight_layout(rect=(0, height / (panels_height + height), 1, 1))
+
+
 #: Markers of the non-learned references other than MuJoCo (grey), so each can be told apart.
 _REF_MARKERS = {"constant twist": "s", "constant twist + joints": "D", "constant twist + motors": "^",
                 "constant twist + motors + joints": "v"}
@@ -60,9 +78,8 @@ def speed_accuracy(lines, path: Path) -> None:
     styles = _styles(lines)
     learned = [lbl for lbl, st in styles.items() if st["ls"] == "-"]
     colour = {lbl: styles[lbl]["color"] for lbl in learned}
-    legend_rows = -(-(len(learned) + 10) // 4)  # learned rows + references, floor, front, notes; 4 columns
-    fig_h = 4.2 * rows + 0.17 * legend_rows + 0.2
-    fig, axes = plt.subplots(rows, cols, figsize=(5.2 * cols, fig_h), squeeze=False)
+    panels_h = 4.6 * rows
+    fig, axes = plt.subplots(rows, cols, figsize=(5.6 * cols, panels_h), squeeze=False)
     handles: dict = {}
     for ax, scene in zip(axes.flat, scenes, strict=False):
         pts = _points(lines, scene)
@@ -106,18 +123,20 @@ def speed_accuracy(lines, path: Path) -> None:
             handles.setdefault("sensitivity floor (MuJoCo from perturbed initial velocities)", h)
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.set_title(scene, fontsize=9)
-        ax.set_xlabel("cost: ms per simulated frame, 1 trajectory (log)")
-        ax.set_ylabel("position MSE at t = 110 (m$^2$, log)")
+        ax.set_title(scene, fontsize=12)
+        ax.set_xlabel("cost: ms per simulated frame, 1 trajectory (log)", fontsize=11)
+        ax.set_ylabel("position MSE at t = 110 (m$^2$, log)", fontsize=11)
     handles.setdefault("Pareto front (circled)", plt.Line2D([], [], marker="o", ms=10, mfc="none", mec="k", ls=""))
     handles.setdefault("hollow: failed on some trajectories; \u25bc: below the axis (value in brackets)",
                        plt.Line2D([], [], marker="o", mfc="none", mec="0.3", ls=""))
     for ax in list(axes.flat)[len(scenes):]:
         ax.axis("off")
-    ncol = 4
-    fig.legend(list(handles.values()), list(handles.keys()), loc="lower center", ncol=ncol, fontsize=7, frameon=False)
-    used_rows = -(-len(handles) // ncol)
-    fig.tight_layout(rect=(0, (0.17 * used_rows + 0.15) / fig_h, 1, 1))
+    def rank(key):  # learned rows (study order), then the references, then the notes on markers
+        base = key.split(" (x at the top")[0]
+        return (0, learned.index(base)) if base in learned else (1, 0) if key[0].islower() or key.startswith("MuJoCo") else (2, 0)
+    notes = ("sensitivity floor", "Pareto front", "hollow:")
+    handles = dict(sorted(handles.items(), key=lambda kv: (2, 0) if kv[0].startswith(notes) else rank(kv[0])))
+    _legend_below(fig, handles, 2 if cols > 1 else 1, panels_h)
     atomic_savefig(fig, path.with_suffix(".png"), dpi=110)
     atomic_savefig(fig, path.with_suffix(".svg"))
     plt.close(fig)
@@ -163,9 +182,8 @@ def stability(lines, path: Path) -> bool:
     if not scenes:
         return False
     styles = _styles([ln for ln in lines if "long" in ln["sets"]])
-    legend_rows = -(-len(styles) // 5)
-    fig_h = 3.6 * len(scenes) + 0.17 * legend_rows + 0.2
-    fig, axes = plt.subplots(len(scenes), 3, figsize=(15, fig_h), squeeze=False)
+    panels_h = 3.6 * len(scenes)
+    fig, axes = plt.subplots(len(scenes), 3, figsize=(15, panels_h), squeeze=False)
     handles: dict = {}
     for row, scene in zip(axes, scenes, strict=True):
         groups: dict = {}
@@ -180,19 +198,18 @@ def stability(lines, path: Path) -> bool:
             row[1].plot(frames, np.maximum(_curve_mean(lns, "energy_error_J"), 1e-12), **style)
             row[2].plot(frames, np.maximum(1e3 * _curve_mean(lns, "joint_separation_m"), 1e-9), **style)
         thr = lns[0]["sets"]["long"]["failure_threshold_m2"]
-        row[0].set_title(f"{scene}: within the failure threshold ({thr:.2g} m$^2$)", fontsize=9)
+        row[0].set_title(f"{scene}: within the failure threshold ({thr:.2g} m$^2$)", fontsize=11)
         row[0].set_ylabel("fraction of trajectories")
         row[0].set_ylim(-0.02, 1.02)
-        row[1].set_title("energy error of survivors (J)", fontsize=9)
-        row[2].set_title("joint separation of survivors (mm)", fontsize=9)
+        row[1].set_title("energy error of survivors (J)", fontsize=11)
+        row[2].set_title("joint separation of survivors (mm)", fontsize=11)
         for ax in row:
             ax.set_xlabel("time step t")
             ax.axvline(110, color="0.7", ls=":", lw=0.8)
         for ax in row[1:]:
             ax.set_yscale("log")
     handles = dict(sorted(handles.items(), key=lambda kv: styles[kv[0]]["ls"] != "-"))  # learned first
-    fig.legend(list(handles.values()), list(handles.keys()), loc="lower center", ncol=5, fontsize=7, frameon=False)
-    fig.tight_layout(rect=(0, (0.17 * -(-len(handles) // 5) + 0.15) / fig_h, 1, 1))
+    _legend_below(fig, handles, 4, panels_h)
     atomic_savefig(fig, path, dpi=100)
     plt.close(fig)
     return True

@@ -8,6 +8,10 @@ diverged rollout counts as failed, never as a large number in a mean. Best learn
 column in bold, second underlined. The "x constant twist" tables divide each learned run's mean
 by the constant-twist reference's mean over **the same trajectories** (those the run did not
 fail on), so model and reference are always averaged over the same trajectories.
+
+Table 4 (the ablation) is left out where Table 1 already holds its scenes, since every learned row
+is in Table 1 (it would repeat it row for row). In the stability and speed tables each scene lists
+the references first, then the learned rows in the order of Table 1.
 """
 
 from __future__ import annotations
@@ -205,6 +209,30 @@ def _mark_best(rows: list[list[str]], values: list[list[float | None]], n_learne
             rows[i][j + 1] = f"<u>{rows[i][j + 1]}</u>"
 
 
+def _reference_order(label: str) -> tuple[int, int]:
+    """Where a reference's row goes: constant twist and its variants (shortest label first), then
+    MuJoCo by timestep factor, then the rest (the sensitivity floor)."""
+    if label.startswith("constant twist"):
+        return (0, len(label))
+    if label.startswith("mujoco dt x"):
+        return (1, int(label.split("x")[-1]))
+    return (2, 0)
+
+
+def _row_order(lines):
+    """Sort key of a per-(scene, label) row of the stability and speed tables: scenes in study order;
+    within a scene the references first (in :func:`_reference_order`), then the learned rows in the
+    order of Table 1 (first seen)."""
+    scenes = {sc: i for i, sc in enumerate(_scenes(lines))}
+    learned = {label: i for i, (label, _) in enumerate(_rows_by_label(lines))}
+
+    def key(ln):
+        if ln["kind"] == "learned":
+            return (scenes[ln["scene"]], 1, (learned.get(ln["label"], len(learned)), 0))
+        return (scenes[ln["scene"]], 0, _reference_order(ln["label"]))
+    return key
+
+
 def _reference_rows(lines, scenes, set_name="test"):
     """Rows of the references: constant twist, MuJoCo at each dt factor, sensitivity floor."""
     refs = [ln for ln in lines if ln["kind"] in ("reference", "sensitivity")]
@@ -212,15 +240,8 @@ def _reference_rows(lines, scenes, set_name="test"):
     for ln in refs:
         if ln["label"] not in labels:
             labels.append(ln["label"])
-
-    def order(lbl):
-        if lbl.startswith("constant twist"):
-            return (0, len(lbl))
-        if lbl.startswith("mujoco dt x"):
-            return (1, int(lbl.split("x")[-1]))
-        return (2, 0)
     out = []
-    for lbl in sorted(labels, key=order):
+    for lbl in sorted(labels, key=_reference_order):
         row, plain = [f"{lbl} (reference)"], [lbl]
         for t in TIMES:
             for sc in scenes:
@@ -299,9 +320,8 @@ def _generalization_table(lines) -> list[Table]:
 
 def _stability_table(lines) -> Table | None:
     rows = []
-    scene_order = {sc: i for i, sc in enumerate(_scenes(lines))}
-    groups = sorted(_group(lines, lambda ln: "long" in ln["sets"]),  # per scene: learned rows, then references
-                    key=lambda g: (scene_order[g[0]["scene"]], g[0]["kind"] != "learned"))
+    key = _row_order(lines)
+    groups = sorted(_group(lines, lambda ln: "long" in ln["sets"]), key=lambda g: key(g[0]))  # per scene: references, then learned
     for ln_group in groups:
         lns = ln_group
         ttf_all, n_all, never, joint, frames = [], 0, 0, [], None
@@ -390,7 +410,9 @@ def _group(lines, pred):
 
 def _speed_table(lines) -> Table | None:
     rows = []
-    for lns in _group(lines, lambda ln: ln["kind"] in ("learned", "reference") and ln.get("status", "ok") == "ok"):
+    key = _row_order(lines)
+    for lns in sorted(_group(lines, lambda ln: ln["kind"] in ("learned", "reference") and ln.get("status", "ok") == "ok"),
+                      key=lambda g: key(g[0])):  # per scene: references, then learned
         ln = lns[0]
         single = np.median([x["cost"]["single"]["ms_per_frame"] for x in lns])
         batched = np.median([x["cost"]["batched"]["ms_per_trajectory_frame"] for x in lns])
@@ -441,6 +463,11 @@ def build_tables(lines: list[dict]) -> list[Table]:
         if not sc:
             continue
         if title == "Table 4":
+            # the paper's ablation table holds the MDGS variants beside the peers on scenes of Table 1;
+            # here every learned row is in Table 1 already, so a Table 4 over scenes Table 1 covers would
+            # repeat it row for row: it is drawn only for scenes no earlier table holds
+            if set(sc) <= covered:
+                continue
             out += _model_table("Table 4 (ablation: MDGS variants beside the peers)", lines, sc)
             continue
         covered |= set(sc)
