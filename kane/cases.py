@@ -29,11 +29,13 @@ __all__ = [
     "Record",
     "free_system_mjcf",
     "record",
+    "eq11_sides",
     "eq11_translational",
     "observed_order",
     "OFFSET",
     "mujoco_partials",
     "pinocchio_partials",
+    "nearest_onehot",
     "onehot_deviation",
     "world_axis_translation",
     "joint_zoo_mjcf",
@@ -172,20 +174,37 @@ def record(s: FreeSystem, duration: float) -> Record:
     return Record(v, a, F, mass, s.dt, ncon)
 
 
-def eq11_translational(rec: Record, true_acc: bool = False) -> float:
-    """Largest translational Eq. (11) residual ``|sum_i F_i - sum_i M_i a_i|`` over frames and
-    axes, relative to the largest ``sum_i |F_i|``; ``a_i`` is the forward difference
-    ``(v^{t+1} - v^t)/delta`` (evaluated by the generated ``eq11_term`` of :mod:`kane.terms`)
-    or, with ``true_acc``, MuJoCo's instantaneous centroid acceleration."""
+def eq11_sides(rec: Record, true_acc: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Both sides of the translational Eq. (11) per frame and world axis, their difference and
+    the force scale.
+
+    Returns ``(F, Ma, S, scale)``: ``F`` [T, 3] is ``sum_i F_i`` (N); ``S`` [T, 3] is
+    ``sum_i (F_i - M_i a_i)`` (N), with ``a_i`` the forward difference ``(v^{t+1} - v^t)/delta``
+    (T - 1 frames, evaluated by the generated ``eq11_term`` of :mod:`kane.terms`) or, with
+    ``true_acc``, MuJoCo's instantaneous centroid acceleration; ``Ma = F - S`` is
+    ``sum_i M_i a_i`` (N); ``scale`` is the largest ``sum_i |F_i|`` (summed over axes), N."""
     from kane import terms
 
-    scale = np.abs(rec.force).sum((1, 2)).max() + 1e-300
+    scale = float(np.abs(rec.force).sum((1, 2)).max() + 1e-300)
     if true_acc:
         S = (rec.force - rec.mass[None, :, None] * rec.a).sum(1)
+        F = rec.force.sum(1)
     else:
         term = terms.loss_functions("numpy")["eq11_term"][1]
         S = term(rec.force[:-1], rec.mass[None, :, None], rec.v[1:], rec.v[:-1], rec.dt, 1.0).sum(1)
-    return float(np.abs(S).max() / scale)
+        F = rec.force[:-1].sum(1)
+    return F, F - S, S, scale
+
+
+def eq11_translational(rec: Record, true_acc: bool = False, where: bool = False):
+    """Largest translational Eq. (11) residual ``|sum_i F_i - sum_i M_i a_i|`` over frames and
+    axes, relative to the largest ``sum_i |F_i|`` (:func:`eq11_sides`); with ``where``, also
+    the frame and the axis where it is largest: ``(residual, frame, axis)``."""
+    _, _, S, scale = eq11_sides(rec, true_acc)
+    r = np.abs(S)
+    t, g = np.unravel_index(np.argmax(r), r.shape)
+    res = float(r[t, g] / scale)
+    return (res, int(t), int(g)) if where else res
 
 
 def observed_order(s: FreeSystem, duration: float, halvings: int = 2) -> tuple[float, list[float], list[float]]:
@@ -225,13 +244,20 @@ def mujoco_partials(m, d, element_bodies) -> tuple[np.ndarray, np.ndarray]:
     return u, w
 
 
-def onehot_deviation(u: np.ndarray, w: np.ndarray) -> float:
+def nearest_onehot(u: np.ndarray) -> int:
+    """The axis ``k`` of the one-hot vector ``+-e_k`` nearest to one speed's partial velocities
+    ``u`` [n, 3] (the same ``k`` for every element: the axis they move along most)."""
+    return int(np.argmax(np.abs(u).sum(0)))
+
+
+def onehot_deviation(u: np.ndarray, w: np.ndarray, per_element: bool = False):
     """How far one speed's partial velocities are from ``u_{i,gamma} = +-e_k`` (the same k for
-    every element) and ``omega_{i,gamma} = 0``: the largest entry-wise distance, u [n, 3], w [n, 3]."""
-    k = int(np.argmax(np.abs(u).sum(0)))
+    every element, :func:`nearest_onehot`) and ``omega_{i,gamma} = 0``: the largest entry-wise
+    distance, u [n, 3], w [n, 3]; with ``per_element``, the distance of each element, [n]."""
     target = np.zeros(3)
-    target[k] = 1.0
-    return float(max(np.abs(np.abs(u) - target).max(), np.abs(w).max()))
+    target[nearest_onehot(u)] = 1.0
+    dev = np.maximum(np.abs(np.abs(u) - target).max(1), np.abs(w).max(1))
+    return dev if per_element else float(dev.max())
 
 
 def world_axis_translation(m, d, dof: int, element_bodies) -> bool:

@@ -617,18 +617,30 @@ def _traj(case: str, integrator: str = "Euler", steps: int = 600):
     return simulate_elements(BoxBodySpec(integrator=integrator, **_TRAJ_CASES[case]), steps)
 
 
-def _eq11_residuals(tr, translational: bool):
-    """Eq. (11) residual per frame and speed (world axes), relative to the force scale."""
+def _eq11_sides(tr, translational: bool):
+    """Eq. (11) per frame and speed (world axes): ``(F, Ma, psi, S, scale)``, [T-1, 3] each but the
+    scale: ``F = sum_i F_{gamma,i}`` (the paper's reading for a rotational speed:
+    ``R_i . e_gamma``), ``Ma = sum_i M_i (v' - v)_gamma / delta``, the disturbance ``psi``
+    (0 for translational speeds; else ``sum_i (M_i - L*_i) . e_gamma``), the generated
+    ``eq11_term`` summed over elements ``S = F - Ma`` and the force scale ``max_t sum |F|``. The
+    claim reads ``F + psi = Ma``; its residual is ``|S + psi| / scale``."""
     eq11_term = terms.loss_functions("numpy")["eq11_term"][1]  # F_{gamma,i} u - M_i (v' - v) u / delta
     S = eq11_term(tr.force[:-1], tr.mass[None, :, None], tr.v[1:], tr.v[:-1], tr.dt, 1.0).sum(1)  # [T-1, 3]
     scale = np.abs(tr.force[:-1]).sum((1, 2)).max() + 1e-300
+    F = tr.force[:-1].sum(1)
     if translational:
-        return np.abs(S) / scale  # Psi = 0: omega_{i,gamma} = 0
+        return F, F - S, np.zeros_like(S), S, scale  # Psi = 0: omega_{i,gamma} = 0
     # rotational speeds, the paper's reading: F_{gamma,i} = R_i . e_gamma, Psi = sum_i (M_i - L*_i) . e_gamma
     I = tr.inertia[:-1]
     Ls = np.einsum("tnab,tb->tna", I, tr.alpha[:-1]) + np.cross(tr.omega[:-1, None, :], np.einsum("tnab,tb->tna", I, tr.omega[:-1]))
     psi = (tr.moment[:-1] - Ls).sum(1)
-    return np.abs(S + psi) / scale
+    return F, F - S, psi, S, scale
+
+
+def _eq11_residuals(tr, translational: bool):
+    """Eq. (11) residual per frame and speed (world axes), relative to the force scale."""
+    _, _, psi, S, scale = _eq11_sides(tr, translational)
+    return np.abs(S) / scale if translational else np.abs(S + psi) / scale
 
 
 def _eq11(case: str, translational: bool, integrator: str = "Euler", corrected: bool = False):
@@ -636,12 +648,13 @@ def _eq11(case: str, translational: bool, integrator: str = "Euler", corrected: 
 
     def fn(quick=True, **_):
         cid = "eq11.corrected" if corrected else "eq11"
-        tr = _traj(case, integrator, 300 if quick else 800)
+        steps = 300 if quick else 800
+        tr = _traj(case, integrator, steps)
         r = _eq11_residuals(tr, translational)
         t, g = np.unravel_index(np.argmax(r), r.shape)
         tol = _tol(case)
         cex = {"claim_id": cid, "kind": "trajectory", "case": label, "integrator": integrator, "frame": int(t), "gamma": int(g),
-               "translational": translational}
+               "translational": translational, "steps": steps}
         return _result(cid, label, Route.MUJOCO, r.max(), tol,
                        {"speeds": "translational (x, y, z)" if translational else "rotational (about x, y, z)",
                         "integrator": integrator, "dt": tr.dt, "elements": "box cells (2x1x1 or 2x2x2), MuJoCo mass properties",
@@ -710,7 +723,8 @@ def _eq11_fs(case: str, clause: str, integrator: str = "Euler", cid: str = "eq11
                            _fs_assumptions(s, deltas=dts, residuals=[float(f"{x:.4g}") for x in res], order=round(p, 4)),
                            what, {**cex, "deltas": dts, "residuals": res})
         true_acc = clause == "a"
-        r = cases.eq11_translational(cases.record(s, dur), true_acc=true_acc)
+        r, t, g = cases.eq11_translational(cases.record(s, dur), true_acc=true_acc, where=True)
+        cex.update(frame=t, gamma=g, translational=True, duration=dur, true_acc=true_acc)
         tol = 1e-5 if s.floor else 1e-10
         what = ("largest |sum F - sum M a| / sum|F| with MuJoCo's true centroid accelerations (mj_objectAcceleration)" if true_acc
                 else "largest |eq. (11) residual| / sum|F| with (v^{t+1} - v^t)/delta, delta = 1e-3")
@@ -726,6 +740,70 @@ for _case in (_OFF, _FLAP):
     CHECKS.append(CheckSpec("eq11.corrected", _case + " (RK4)", Route.MUJOCO.value, _eq11_fs(_case, "d", "RK4"), True, "d"))
     CHECKS.append(CheckSpec("eq11", _case, Route.MUJOCO.value, _eq11_fs(_case, "d", cid="eq11"), _case == _OFF, "fd"))
 CHECKS.append(CheckSpec("eq11.corrected", "box striking a plane (RK4)", Route.MUJOCO.value, _eq11_fs(_PLANE, "e", "RK4"), True, "e"))
+
+
+_AXES = "xyz"
+
+
+def counterexample_sides(cex: dict) -> tuple[list, list] | None:
+    """Both sides of Eq. (11) or Eq. (23) at a recorded ``trajectory`` or ``jacobian``
+    counterexample, re-evaluated by the very functions the check used: ``(context, sides)``,
+    ``context`` a list of (name, value) saying where, ``sides`` a list of
+    :class:`kane.engines.Side`. ``None`` for counterexamples that record no single point
+    (fitted orders, random systems, Pinocchio speeds, reports written before frames were recorded).
+
+    * Eq. (23), a MuJoCo case: the partial velocity ``u'_{i,gamma}`` of the element whose
+      deviation is largest against the nearest one-hot ``+-e_k``, and its partial angular
+      velocity against 0; the largest entry of ``|lhs - rhs|`` is the check's deviation.
+    * Eq. (11): ``sum_i F_{gamma,i} + Psi_gamma`` against ``sum_i M_i a_{gamma,i}`` at the
+      recorded frame and speed; ``|lhs - rhs| / scale`` is the check's residual.
+    """
+    from kane import cases
+    from kane.engines import Side
+
+    kind = cex.get("kind")
+    if kind == "jacobian" and cex.get("case") in _EQ23_CASES and "dof" in cex:
+        m, d, els = _EQ23_CASES[cex["case"]]()
+        g = int(cex["dof"])
+        u, w = cases.mujoco_partials(m, d, els)
+        k = cases.nearest_onehot(u[g])
+        i = int(np.argmax(cases.onehot_deviation(u[g], w[g], per_element=True)))
+        rhs = np.zeros(3)
+        rhs[k] = 1.0 if u[g, i, k] >= 0 else -1.0
+        e = f"{'+' if rhs[k] > 0 else '-'}e_{_AXES[k]}"
+        context = [("case", cex["case"], ""), ("speed (MuJoCo dof)", g, ""),
+                   ("element with the largest deviation", f"{i} of {len(els)}", ""), ("nearest one-hot vector", e, "")]
+        sides = [Side("partial_velocity", f"u'_(i,gamma) of element {i}", e, u[g, i].copy(), rhs, u[g, i] - rhs, 1.0, "|e_k|"),
+                 Side("partial_angular_velocity", f"omega_(i,gamma) of element {i}", "0", w[g, i].copy(), np.zeros(3), w[g, i].copy(),
+                      1.0, "|e_k|")]
+        return context, sides
+    if kind != "trajectory" or "frame" not in cex or "gamma" not in cex or not cex.get("claim_id", "").startswith("eq11"):
+        return None
+    t, g, integrator = int(cex["frame"]), int(cex["gamma"]), cex.get("integrator", "Euler")
+    base = cex["case"].removesuffix(f" ({integrator})")
+    translational = bool(cex.get("translational", True))
+    if "duration" in cex and base in _FREE_NAMES:
+        from dataclasses import replace
+
+        s = replace(_free_cases()[base], integrator=integrator)
+        F, Ma, S, scale = cases.eq11_sides(cases.record(s, float(cex["duration"])), bool(cex.get("true_acc", False)))
+        psi, dt, frames = 0.0, s.dt, f"{float(cex['duration']):g} s"
+    elif "steps" in cex and base in _TRAJ_CASES:
+        tr = _traj(base, integrator, int(cex["steps"]))
+        F, Ma, P, S, scale = _eq11_sides(tr, translational)
+        psi, dt, frames = float(P[t, g]), tr.dt, f"{int(cex['steps'])} steps"
+    else:
+        return None
+    speed = (f"translation along {_AXES[g]}" if translational else f"rotation about {_AXES[g]}")
+    acc = "true accelerations" if cex.get("true_acc") else "(v^{t+1} - v^t)/delta"
+    context = [("case", cex["case"], ""), ("integrator", integrator, ""), ("delta", dt, "s"), ("recorded", frames, ""), ("frame", t, ""),
+               ("time", t * dt, "s"), ("speed gamma", f"{g}, {speed}", "")]
+    if not translational:  # the left side is sum_i F_(gamma,i) + Psi_gamma: both parts
+        context += [("sum_i F_(gamma,i)", float(F[t, g]), "N"), ("Psi_gamma", psi, "N m")]
+    lhs = "sum_i F_(gamma,i)" + ("" if translational else " + Psi_gamma")
+    sides = [Side("force_balance", lhs, f"sum_i M_i a_(gamma,i), a = {acc}", float(F[t, g] + psi), float(Ma[t, g]),
+                  float(S[t, g] + psi), float(scale), "max_t sum_i |F_i|", "N" if translational else "")]
+    return context, sides
 
 
 def _eq11_hyp(clause: str):

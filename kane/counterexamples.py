@@ -8,22 +8,27 @@ A counterexample is a JSON-ready dict with ``claim_id`` and ``kind``:
   both sides of the claim are evaluated from those engine quantities. This is an
   independent evaluation of the inequality, not a re-run of the sympy expression.
 * ``mujoco_geom``: an element that is one MuJoCo geom; its inertia comes from MuJoCo.
-* ``trajectory``, ``jacobian``, ``scaling``: re-run the check that recorded them.
+* ``trajectory``, ``jacobian``, ``scaling``: re-run the check that recorded them; for Eq. (11)
+  and Eq. (23), also evaluate both sides at the recorded frame and speed
+  (:func:`kane.claims.counterexample_sides`).
 """
 
 from __future__ import annotations
 
-from kane.engines import ReplayReport, replay_element, replay_geom
+from kane.engines import ReplayReport, Side, replay_element, replay_geom
 
-__all__ = ["ReplayReport", "replay"]
+__all__ = ["ReplayReport", "Side", "replay"]
 
 
 def _replay_check(cex: dict) -> ReplayReport:
-    from kane.claims import run_checks
+    from kane.claims import counterexample_sides, run_checks
 
-    res = run_checks([cex["claim_id"]], [cex["case"]] if "case" in cex else None)
-    rows = [(r.route, r.residual, r.tolerance) for r in res if r.claim_id == cex["claim_id"]]
-    return ReplayReport(cex["claim_id"], cex["kind"], rows, "re-ran the recorded check: lhs = residual, rhs = tolerance")
+    res = [r for r in run_checks([cex["claim_id"]], [cex["case"]] if "case" in cex else None) if r.claim_id == cex["claim_id"]]
+    same = [r for r in res if r.case == cex.get("case")]  # --case matches substrings: "(RK4)" cases too
+    rows = [(r.route, r.residual, r.tolerance) for r in (same or res)]
+    context, sides = counterexample_sides(cex) or ([], [])
+    return ReplayReport(cex["claim_id"], cex["kind"], rows, "re-ran the recorded check: lhs = residual, rhs = tolerance",
+                        context=context, sides=sides)
 
 
 def replay(cex: dict) -> ReplayReport:

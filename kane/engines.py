@@ -15,9 +15,53 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ReplayReport", "replay_element", "replay_geom"]
+__all__ = ["ReplayReport", "Side", "replay_element", "replay_geom"]
 
 _SPHERE = 1e-4  # radius of the point-mass spheres, m: adds (2/5) m r^2 ~ 4e-9 m to the inertia
+
+
+def _g(x, digits: int = 4) -> str:
+    """A number or a vector to ``digits`` significant digits, as the replay prints it."""
+    if np.ndim(x):
+        return "(" + ", ".join(f"{float(c):.{digits}g}" for c in np.ravel(x)) + ")"
+    return f"{float(x):.{digits}g}"
+
+
+@dataclass(frozen=True)
+class Side:
+    """One equality of a claim at a counterexample, ``lhs = rhs`` (numbers or 3-vectors).
+
+    ``margin`` is ``lhs - rhs`` as the check computes it (its own difference, not a re-subtraction
+    of the rounded sides); the relative margin is the largest ``|margin|`` entry over ``scale``:
+    the number the validation report lists. ``key`` names the comparison for the docs
+    (:func:`validation.render.counterexample_view`); the ``*_text`` fields are what the terminal prints.
+    """
+
+    key: str
+    lhs_text: str
+    rhs_text: str
+    lhs: object
+    rhs: object
+    margin: object
+    scale: float
+    scale_text: str
+    unit: str = ""
+
+    @property
+    def absolute(self) -> float:
+        """The largest ``|lhs - rhs|`` entry."""
+        return float(np.abs(np.asarray(self.margin, float)).max())
+
+    @property
+    def relative(self) -> float:
+        """:attr:`absolute` over :attr:`scale`: the report's residual at this point."""
+        return self.absolute / self.scale
+
+    def lines(self) -> list[str]:
+        u = f" {self.unit}" if self.unit else ""
+        return [f"  {self.lhs_text} = {_g(self.lhs)}{u}", f"  {self.rhs_text} = {_g(self.rhs)}{u}",
+                f"    lhs - rhs = {_g(self.margin)}{u}; largest |lhs - rhs| = {self.absolute:.4g}{u}; "
+                f"relative margin = largest |lhs - rhs| / ({self.scale_text} = {self.scale:.4g}{u}) = {self.relative:.3g}"]
 
 
 @dataclass(frozen=True)
@@ -31,6 +75,9 @@ class ReplayReport:
     #: the normalisation of the check's margin: the report lists (lhs - rhs) / scale
     scale: float | None = None
     scale_text: str = ""
+    #: equality claims re-evaluated at the recorded point: where, as (name, value, unit), and both sides
+    context: list = field(default_factory=list)
+    sides: list = field(default_factory=list)  # [Side]
 
     def relative(self, lhs: float, rhs: float) -> float | None:
         """(lhs - rhs) / scale: the number the validation report lists (``None`` without a scale)."""
@@ -49,6 +96,11 @@ class ReplayReport:
         if self.scale:
             lines.append(f"  scale = {self.scale_text} = {self.scale:.4g}; the report's margin is (lhs - rhs) / scale")
         lines.append(f"  => {'refuted' if self.refuted else 'holds'} at this point" + (f"; {self.note}" if self.note else ""))
+        if self.sides:
+            where = ", ".join(f"{k} = {v if isinstance(v, str) else _g(v)}" + (f" {u}" if u else "") for k, v, u in self.context)
+            lines.append(f"both sides at the recorded point ({where}); the claim says lhs = rhs:")
+            for sd in self.sides:
+                lines += sd.lines()
         return "\n".join(lines)
 
 

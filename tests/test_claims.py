@@ -242,3 +242,24 @@ def test_solid_shapes_against_textbook_ratios():
     tet = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], float)
     assert cases.tetra_ratio(tet) == pytest.approx(2 / 15, rel=1e-9)
     assert cases.point_box_ratio([1, 1, 1]) == pytest.approx(2 / 3, rel=1e-12)
+
+
+@pytest.mark.parametrize("cid, case", [("eq23", "free box, 8 elements, rotated"), ("eq11", "free box in gravity, spinning"),
+                                       ("eq11", "free box, joint origin offset")])
+def test_equality_counterexample_sides_give_back_the_checks_number(cid, case):
+    """Both sides at the recorded point (frame, speed, element) reproduce the check's own number:
+    the largest |lhs - rhs| over the scale is the Eq. (11) residual or the Eq. (23) deviation, so
+    the point is the one the check found; and the replay prints those sides."""
+    from kane.claims import counterexample_sides
+
+    refuted = [r for r in run_checks([cid], [case], quick=True) if r.claim_id == cid and r.verdict == "refuted"]
+    r = max(refuted, key=lambda x: x.residual)
+    context, sides = counterexample_sides(r.counterexample)
+    assert max(sd.relative for sd in sides) == pytest.approx(r.residual, rel=1e-9)
+    for sd in sides:  # lhs - rhs is the check's own difference, up to round-off of the sides
+        np.testing.assert_allclose(np.asarray(sd.lhs, float) - np.asarray(sd.rhs, float), sd.margin, atol=1e-12 * (1 + sd.scale))
+    if cid == "eq11":
+        assert dict((k, v) for k, v, _ in context)["frame"] == r.counterexample["frame"]
+    printed = str(replay(r.counterexample))
+    assert "both sides at the recorded point" in printed
+    assert f"= {max(sd.relative for sd in sides):.3g}" in printed

@@ -41,6 +41,7 @@ __all__ = [
     "expand_compact",
     "compact_agrees",
     "expanded_lines",
+    "relation_lines",
     "TEXT",
     "scope_tex",
     "NORMALISATION",
@@ -307,23 +308,26 @@ def _abbreviate(term, width: int, named: list) -> object:
     return term
 
 
-def expanded_lines(expr, suffix: str = "", width: int = 30, label: str = r"\text{margin}") -> list[str]:
+def expanded_lines(expr, suffix: str = "", width: int = 26, label: str = r"\text{margin}") -> list[str]:
     """The component form of ``expr`` over lines of about ``width`` glyphs (``aligned`` rows).
 
     Common subexpressions (``sympy.cse``) are named :math:`x_k`, and the inner sums or roots of
     a term still too wide are named :math:`z_k`; each is written out after the margin, so that
-    no line is wider than a phone's column. Every row is ``sympy.latex`` of terms of the very
-    expression the checks evaluate.
+    no line is wider than a phone's column. The rows align at ``=``, so every row is as wide as
+    the widest name plus its terms: the terms get ``width`` minus that name. Every row is
+    ``sympy.latex`` of terms of the very expression the checks evaluate.
     """
     reps, (red,) = sp.cse(expr)
     named: list = []
     todo = [(sp.Symbol("margin"), red)] + list(reps)
+    head_w = max([_visible(label)] + [_visible(sp.latex(sym)) for sym, _ in reps] + [_visible("z_{99}")]) + 2  # "={}"
+    body_w = max(width - head_w, 12)
     lines: list[str] = []
     while todo:
         sym, val = todo.pop(0)
         n0 = len(named)
-        terms = [_abbreviate(t, width, named) for t in _terms(val)]
-        body = _split(_tex_terms(terms), width)
+        terms = [_abbreviate(t, body_w, named) for t in _terms(val)]
+        body = _split(_tex_terms(terms), body_w)
         if sym.name == "margin":
             body[-1] += suffix
             head = f"{label} ={{}} & " if (reps or named) else "& "
@@ -333,6 +337,48 @@ def expanded_lines(expr, suffix: str = "", width: int = 30, label: str = r"\text
         lines += [f"& {b}" for b in body[1:]]
         todo += named[n0:]
     return lines
+
+
+def _side_lines(expr, width: int) -> list[str]:
+    r"""``expr`` printed by :class:`Printer` over lines of about ``width`` glyphs: split at the
+    terms of a sum, and inside a sum over ``i`` of a sum (``\sum_i \Big( a - b \Big)``)."""
+    tex = latex(expr)
+    if _visible(tex) <= width:
+        return [tex]
+    if isinstance(expr, sp.Add):
+        out: list[str] = []
+        for i, term in enumerate(expr.args):
+            parts = _side_lines(term, width)
+            if i and not parts[0].startswith("-"):
+                parts[0] = "+ " + parts[0]
+            if out and _visible(out[-1]) + _visible(parts[0]) <= width:
+                out[-1] += " " + parts.pop(0)
+            out += parts
+        return out
+    if isinstance(expr, sp.Sum) and isinstance(expr.function, sp.Add):
+        hole = sp.Symbol("HOLE")
+        prefix = latex(sp.Sum(hole, *expr.limits)).replace(latex(hole), "").strip() + r" \Bigg("
+        inner = _side_lines(expr.function, width - 2)
+        if _visible(prefix) + _visible(inner[0]) > width:  # terms one per line
+            inner = [x for i, t in enumerate(expr.function.args)
+                     for x in [(latex(t) if i == 0 or latex(t).startswith("-") else "+ " + latex(t))]]
+        inner[0] = f"{prefix} {inner[0]}"
+        inner[-1] += r" \Bigg)"
+        return inner
+    return [tex]
+
+
+def relation_lines(lhs, rhs, rel: str = "=", width: int = 26) -> list[str]:
+    r"""``lhs rel rhs`` as rows of an ``aligned`` environment, none wider than about ``width``
+    glyphs (:func:`_visible`): one row when it fits, else ``lhs`` then ``rel rhs``, each side
+    broken at its terms (:func:`_side_lines`); the rows after the first are indented."""
+    lt, rt = latex(lhs), latex(rhs)
+    if _visible(lt) + _visible(rt) + 1 <= width:
+        return [f"& {lt} {rel} {rt}"]
+    left = _side_lines(lhs, width)
+    right = _side_lines(rhs, width - 4)
+    return ([f"& {left[0]}"] + [rf"& \quad {x}" for x in left[1:]] + [rf"& \quad {rel} {right[0]}"]
+            + [rf"& \qquad {x}" for x in right[1:]])
 
 
 # --------------------------------------------------------------------------- texts
@@ -577,6 +623,90 @@ def _element_sentence(cid: str, q: dict) -> str:
             rf"gyroscopic torque ({fmt(q['gyro'], 3)} N m) make \(\lvert\Psi\rvert\) exceed the bound.")
 
 
+@lru_cache(maxsize=64)
+def _sides_cached(cex_json: str):
+    import json
+
+    from kane.claims import counterexample_sides
+
+    return counterexample_sides(json.loads(cex_json))
+
+
+def _sides(cex: dict):
+    """Both sides of Eq. (11) or Eq. (23) at a recorded counterexample, as ``mdgs validate
+    --replay`` prints them (:func:`kane.claims.counterexample_sides`); ``None`` when it records no point."""
+    import json
+
+    return _sides_cached(json.dumps(cex, sort_keys=True))
+
+
+def _yesno(v) -> str:
+    """``yes``/``no`` for a real bool only (an index 0 or 1 stays a number)."""
+    return {True: "yes", False: "no"}[v] if isinstance(v, bool) else str(v)
+
+
+def _context_value(v, unit: str) -> str:
+    """A context value of :func:`_sides`: a float to 4 digits, ``+e_z`` as math, anything else as text."""
+    if isinstance(v, float):
+        return fmt(v)
+    text = _yesno(v)
+    m = re.fullmatch(r"([+-])e_([xyz])", text)
+    return rf"\({m.group(1)}\mathbf e_{m.group(2)}\)" if m else text
+
+
+def _num(x) -> str:
+    """A number or a 3-vector to 4 significant digits, as the replay prints them (round-off as 0)."""
+    return _vec(x, 4) if np.ndim(x) else fmt(x)
+
+
+#: the replay's names of the context of an equality counterexample -> the docs' labels
+_CONTEXT = {
+    "speed (MuJoCo dof)": r"speed \(\gamma\) (MuJoCo dof)", "delta": r"time step \(\delta\) (s)", "time": "time (s)",
+    "speed gamma": r"speed \(\gamma\)", "sum_i F_(gamma,i)": r"\(\sum_i F_{\gamma,i}\) (N)", "Psi_gamma": r"\(\Psi_\gamma\) (N m)",
+    "recorded": "recorded",
+}
+_SIDE_LABELS = {  # Side.key -> (lhs label, rhs label) given the counterexample
+    "partial_velocity": (lambda cex: r"lhs: partial velocity \(\mathbf u'_{i,\gamma}\) of that element",
+                         lambda cex: r"rhs: the nearest one-hot vector \(\pm\mathbf e_k\)"),
+    "partial_angular_velocity": (lambda cex: r"lhs: partial angular velocity \(\boldsymbol\omega_{i,\gamma}\)",
+                                 lambda cex: r"rhs: \(\mathbf 0\)"),
+    "force_balance": (lambda cex: r"lhs: \(\sum_i F_{\gamma,i}\)" + ("" if cex.get("translational", True) else r" \(+\ \Psi_\gamma\)"),
+                      lambda cex: r"rhs: \(\sum_i M_i\,a_{\gamma,i}\), " + ("true accelerations" if cex.get("true_acc")
+                                                                            else r"\(a = (v^{t+1} - v^{t})/\delta\)")),
+}
+_SCALE_LABELS = {
+    "partial_velocity": r"relative margin (over \(\lvert\mathbf e_k\rvert = 1\))",
+    "partial_angular_velocity": r"relative margin (over \(\lvert\mathbf e_k\rvert = 1\))",
+    "force_balance": r"relative margin, over \(\max_t\sum_i\lvert\mathbf F_i\rvert\) (the report's number)",
+}
+
+
+def _equality_sentence(cex: dict, context: list, sides: list) -> str:
+    """One sentence of physics on why an Eq. (11) or Eq. (23) counterexample fails."""
+    if cex["kind"] == "jacobian":
+        return (r"This speed turns the body, so each element centroid moves by \(\boldsymbol\omega_{i,\gamma}\times\mathbf r_i\), "
+                r"a small vector in a different direction for every element, and the elements turn with "
+                r"\(\boldsymbol\omega_{i,\gamma} \ne \mathbf 0\): no unit vector \(\pm\mathbf e_k\) describes it.")
+    if not cex.get("translational", True):
+        psi = dict((k, v) for k, v, _ in context)["Psi_gamma"]
+        sd = sides[0]
+        newton = abs(sd.margin - psi) <= 1e-6 * sd.scale  # sum F = sum M a along that axis: the leftover is Psi
+        return (r"For a rotational speed the paper's reading takes \(F_{\gamma,i} = \mathbf R_i\cdot\mathbf e_\gamma\), a force"
+                + (r", and the forces balance the forward difference along that axis, so lhs − rhs is \(\Psi_\gamma\) itself: "
+                   r"the moments minus the inertia torques of the spinning elements, which are not 0." if newton else
+                   r"; lhs − rhs holds \(\Psi_\gamma\), the moments minus the inertia torques of the spinning elements, which "
+                   r"are not 0."))
+    if cex.get("integrator") == "RK4":
+        return (r"RK4 takes the contact force at stages inside the step: at contact onset the forces recorded at the step's "
+                r"start miss most of the contact impulse that \((v^{t+1} - v^{t})/\delta\) contains.")
+    if "flap" in cex.get("case", ""):
+        return (r"Semi-implicit Euler steps the joint speeds; the flap's centroid velocity depends on the hinge angle, so "
+                r"\((v^{t+1} - v^{t})/\delta\) of the elements misses their true acceleration by \(O(\delta)\).")
+    return (r"With the joint origin off the centre of mass the Euler step moves the centre of mass along "
+            r"\(\boldsymbol\omega\times\mathbf r\) as well, so \((v^{t+1}-v^t)/\delta\) misses the true "
+            r"acceleration by \(O(\delta)\).")
+
+
 def counterexample_view(row: dict) -> dict | None:
     """What the docs show of the counterexample of one report row (``checks`` entry).
 
@@ -634,34 +764,41 @@ def counterexample_view(row: dict) -> dict | None:
         sentence = (rf"Doubling every offset multiplies the moment of the forces by {fmt(s, 2)} but the inertia torque by "
                     rf"{fmt(s * s, 2)}, so \(\Psi(s\,\mathbf r) \ne s\,\Psi(\mathbf r)\).")
         src = "the generic element's sympy \\(\\Psi\\), at the recorded sample"
+    elif kind in ("jacobian", "trajectory") and _sides(cex) is not None:
+        context, sides_ = _sides(cex)
+        quantities = [(_CONTEXT.get(k, k), _context_value(v, unit)) for k, v, unit in context]
+        for sd in sides_:
+            lhs_label, rhs_label = _SIDE_LABELS[sd.key]
+            unit = f" ({sd.unit})" if sd.unit else ""
+            sides += [(lhs_label(cex) + unit, _num(sd.lhs)), (rhs_label(cex) + unit, _num(sd.rhs)),
+                      ("lhs − rhs" + unit, _num(sd.margin)), (r"absolute margin, largest \(\lvert\text{lhs} − \text{rhs}\rvert\)" + unit,
+                                                            fmt(sd.absolute)),
+                      (_SCALE_LABELS[sd.key], f"{sd.relative:.3g}")]
+        sentence = _equality_sentence(cex, context, sides_)
+        src = "`mdgs validate --replay` (its lines \"both sides at the recorded point\"), from the same functions as the check"
     elif kind == "jacobian":
-        quantities = [("case", row["case"]), ("speed (MuJoCo dof)", str(cex.get("dof"))),
+        quantities = [("case", row["case"]), ("speed", str(cex.get("dof", cex.get("speed")))),
                       ("deviation from the nearest one-hot vector", fmt(cex.get("deviation"), 3))]
         sides = [("largest deviation (the report's residual)", f"{row['residual']:.3g}"), ("tolerance", f"{row['tolerance']:.3g}")]
         sentence = (r"This speed turns the body, so each element centroid moves by \(\boldsymbol\omega_{i,\gamma}\times\mathbf r_i\): "
                     "a different direction for every element, not one unit vector.")
         src = "the check, re-run by `mdgs validate --replay` (which prints residual and tolerance)"
-    elif kind == "trajectory":
-        if cid.startswith("eq12"):
-            psi = np.abs(np.asarray(cex["psi"], float))
-            quantities = [("case", row["case"]), ("frame", str(cex.get("frame"))), (_Q["omega"], _vec(cex["omega"])),
-                          (_Q["alpha"], _vec(cex["alpha"])), (r"\(\Psi\) per rotational speed \(x, y, z\) (N m)", _vec(cex["psi"]))]
-            sides = [(r"lhs \(\max_\gamma\lvert\Psi_\gamma\rvert\)", fmt(psi.max())), ("rhs (the paper's bound)", fmt(cex["rhs"], 4, 1e-12)),
-                     ("lhs − rhs", f"{psi.max() - cex['rhs']:.3g}"), ("relative margin (the report's number)", f"{row['residual']:.3g}")]
-            sentence = (r"A steady spin about the cube's diagonal with no loads: the bound is 0, but each half-cube spins about "
-                        r"a non-principal axis of its own and needs the gyroscopic torque \(\boldsymbol\omega\times\mathbf I_i"
-                        r"\boldsymbol\omega\) from the other half, an inter-element force that the paper leaves out of \(\Psi\).")
-        else:
-            names = {"integrator": "integrator", "frame": "frame", "gamma": r"speed \(\gamma\) (index)",
-                     "translational": "translational speed"}
-            quantities = [("case", row["case"])] + [(names[k], {True: "yes", False: "no"}.get(cex[k], str(cex[k])))
-                                                    for k in names if k in cex]
-            sides = [("largest relative residual (the report's number)", f"{row['residual']:.3g}"), ("tolerance", f"{row['tolerance']:.3g}")]
-            sentence = ("For a rotational speed the partial velocities are not one-hot, so the element sum of Eq. (11) is not "
-                        "Kane's equation for that speed." if cex.get("translational") is False else
-                        r"With the joint origin off the centre of mass the Euler step moves the centre of mass along "
-                        r"\(\boldsymbol\omega\times\mathbf r\) as well, so \((v^{t+1}-v^t)/\delta\) misses the true "
-                        r"acceleration by \(O(\delta)\).")
+    elif kind == "trajectory" and cid.startswith("eq12"):
+        psi = np.abs(np.asarray(cex["psi"], float))
+        quantities = [("case", row["case"]), ("frame", str(cex.get("frame"))), (_Q["omega"], _vec(cex["omega"])),
+                      (_Q["alpha"], _vec(cex["alpha"])), (r"\(\Psi\) per rotational speed \(x, y, z\) (N m)", _vec(cex["psi"]))]
+        sides = [(r"lhs \(\max_\gamma\lvert\Psi_\gamma\rvert\)", fmt(psi.max())), ("rhs (the paper's bound)", fmt(cex["rhs"], 4, 1e-12)),
+                 ("lhs − rhs", f"{psi.max() - cex['rhs']:.3g}"), ("relative margin (the report's number)", f"{row['residual']:.3g}")]
+        sentence = (r"A steady spin about the cube's diagonal with no loads: the bound is 0, but each half-cube spins about "
+                    r"a non-principal axis of its own and needs the gyroscopic torque \(\boldsymbol\omega\times\mathbf I_i"
+                    r"\boldsymbol\omega\) from the other half, an inter-element force that the paper leaves out of \(\Psi\).")
+        src = "the check, re-run by `mdgs validate --replay` (which prints residual and tolerance)"
+    elif kind == "trajectory":  # a counterexample with no single point (fitted orders, random systems)
+        names = {"integrator": "integrator", "frame": "frame", "gamma": r"speed \(\gamma\) (index)",
+                 "translational": "translational speed"}
+        quantities = [("case", row["case"])] + [(names[k], _yesno(cex[k])) for k in names if k in cex]
+        sides = [("largest relative residual (the report's number)", f"{row['residual']:.3g}"), ("tolerance", f"{row['tolerance']:.3g}")]
+        sentence = "The check's residual exceeds its tolerance on this system; its settings are listed above."
         src = "the check, re-run by `mdgs validate --replay` (which prints residual and tolerance)"
     else:
         return None
