@@ -19,10 +19,12 @@ Placeholders (in any ``docs/*.md``)::
                        root) derived by ``kane.mjcf.from_mjcf``, with the engine residuals
 
 The LaTeX comes from the very sympy expressions the checks evaluate (the compact vector forms
-are compared with them at build time: a disagreement stops the build). Verdicts come from the
-JSON report named by the environment variable ``MDGS_REPORT`` (``mdgs validate --json PATH``);
-without it the hook runs ``kane.claims.run_checks(quick=True)`` once per build. An unknown id
-or an unfilled placeholder stops the build. The HTML also loses sphinx roles (``:func:``) that
+are compared with them at build time: a disagreement stops the build). Verdicts and numbers come
+from the JSON report of the full run committed at :data:`COMMITTED_REPORT` (``mdgs validate
+--json docs/results/validation/full-report.json``), or from the report named by the environment
+variable ``MDGS_REPORT``; a checkout without either runs ``kane.claims.run_checks(quick=True)``
+once per build. A report whose claims differ from kane's (:func:`stale_report`) stops a strict
+build, as do an unknown id and an unfilled placeholder. The HTML also loses sphinx roles (``:func:``) that
 mkdocstrings leaves in docstrings (:func:`on_page_content`).
 """
 
@@ -51,18 +53,60 @@ def _claims() -> dict:
     return CLAIMS
 
 
+#: the committed report of the full run that the site shows (``mdgs validate --json`` this path)
+COMMITTED_REPORT = os.path.join("docs", "results", "validation", "full-report.json")
+_ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def stale_report(rep: dict) -> list[str]:
+    """How a report disagrees with the current claims of :mod:`kane` (empty: it does not).
+
+    Cheap (no check is run): every claim entry of the report must name a current claim with the
+    same title, statement and clauses, and every current claim that has checks must be in it."""
+    from kane.claims import CHECKS
+
+    claims, out = _claims(), []
+    seen = {c["id"]: c for c in rep.get("claims", [])}
+    for cid, c in seen.items():
+        claim = claims.get(cid)
+        if claim is None:
+            out.append(f"{cid} is no claim of kane any more")
+            continue
+        if c.get("title") != claim.title or c.get("statement") != claim.statement:
+            out.append(f"{cid}: title or statement changed")
+        if [(x["key"], x["text"]) for x in c.get("clauses", [])] != list(claim.clause_list()):
+            out.append(f"{cid}: clauses changed")
+    for cid in dict.fromkeys(s.claim_id for s in CHECKS):
+        if cid not in seen:
+            out.append(f"{cid} has checks but is not in the report")
+    return out
+
+
 def _report() -> dict:
-    """The report dict (see :mod:`validation.report`), computed or read once per build."""
+    """The report dict (see :mod:`validation.report`), read or computed once per build: the
+    report named by ``MDGS_REPORT``, else the committed full run (:data:`COMMITTED_REPORT`),
+    else a live ``mdgs validate --quick`` (a checkout without the committed file)."""
     if "report" not in _state:
         path = os.environ.get("MDGS_REPORT")
-        if path:
+        committed = os.path.join(_ROOT, COMMITTED_REPORT)
+        if path or os.path.isfile(committed):
+            name = path or committed
             try:
-                with open(path, encoding="utf-8") as f:
+                with open(name, encoding="utf-8") as f:
                     _state["report"] = json.load(f)
             except (OSError, json.JSONDecodeError) as e:
-                raise PluginError(f"MDGS_REPORT={path}: cannot read the report ({e}).") from e
-            _state["source"] = f"the report <code>{html.escape(os.path.basename(path))}</code> written by <code>mdgs validate --json</code>"
-            _state["quick"] = False
+                what = f"MDGS_REPORT={path}" if path else COMMITTED_REPORT
+                raise PluginError(f"{what}: cannot read the report ({e}); write it with `mdgs validate --json {name}`.") from e
+            if path:
+                _state["source"] = (f"the report <code>{html.escape(os.path.basename(path))}</code> named by "
+                                    "<code>MDGS_REPORT</code> (written by <code>mdgs validate --json</code>)")
+            else:
+                _state["source"] = (f"the committed report <code>{COMMITTED_REPORT}</code>, written by "
+                                    f"<code>mdgs validate --json {COMMITTED_REPORT}</code>")
+            stale = stale_report(_state["report"])
+            if stale:  # a warning stops a --strict build
+                log.warning("mdgs: the report %s is stale against kane's claims (%s); rewrite it with "
+                            "`mdgs validate --json %s`.", path or COMMITTED_REPORT, "; ".join(stale[:5]), path or COMMITTED_REPORT)
         else:
             from kane.claims import run_checks
             from validation.report import build_report
@@ -70,9 +114,19 @@ def _report() -> dict:
             t0 = time.perf_counter()
             _state["report"] = build_report(run_checks(quick=True), _claims())
             _state["source"] = "<code>mdgs validate --quick</code>, run while this site was built"
-            _state["quick"] = True
             log.info("mdgs: quick validation for the docs took %.1f s", time.perf_counter() - t0)
+        _state["quick"] = is_quick(_state["report"])
     return _state["report"]
+
+
+def is_quick(rep: dict) -> bool:
+    """Whether a report is of the quick subset: it lacks checks that only the full run makes
+    (those of the specs that :mod:`kane.claims` marks not quick, e.g. the hypothesis routes)."""
+    from kane.claims import CHECKS
+
+    full_only = {(s.claim_id, s.route) for s in CHECKS if not s.quick} - {(s.claim_id, s.route) for s in CHECKS if s.quick}
+    have = {(r["id"], r["route"]) for r in rep["checks"]}
+    return bool(full_only) and not (full_only & have)
 
 
 def on_pre_build(config, **kwargs) -> None:
@@ -163,11 +217,12 @@ def _scope(cid: str) -> str:
 
 # --------------------------------------------------------------------------- equations
 
-_NARROW = 28  # glyphs: a relation wider than this is written over two lines (390 px column)
+_NARROW = 26  # glyphs (validation.render._visible) of a display row: about 330 px of a 390 px phone's column
 
 
 def _display(cid: str) -> str:
-    """``$$...$$`` of a claim's statement; lhs and rhs on two lines when wide."""
+    """``$$...$$`` of a claim's statement, over rows of at most :data:`_NARROW` glyphs
+    (:func:`validation.render.relation_lines`)."""
     import sympy as sp
 
     from validation import render
@@ -179,17 +234,17 @@ def _display(cid: str) -> str:
     if cid in render.COMPACT:
         lhs, rhs = render.COMPACT[cid]
         rel = "=" if cid.startswith("eq30") else r"\le"
-        lt, rt = render.latex(lhs), render.latex(rhs)
     else:
         e = c.expression()
         if e is None:
             return "*No single sympy expression: this claim is decided numerically (the checks below).*"
         if not isinstance(e, sp.Eq):
             return "$$\n" + render.latex(e) + "\n$$"
-        rel, lt, rt = "=", render.latex(e.lhs), render.latex(e.rhs)
-    if render._visible(lt) + render._visible(rt) <= _NARROW:
-        return f"$$\n{lt} {rel} {rt}\n$$"
-    return f"$$\n\\begin{{aligned}}\n&{lt}\n\\\\ &\\quad {rel} {rt}\n\\end{{aligned}}\n$$"
+        rel, lhs, rhs = "=", e.lhs, e.rhs
+    rows = render.relation_lines(lhs, rhs, rel, _NARROW)
+    if len(rows) == 1:
+        return f"$$\n{rows[0][2:]}\n$$"
+    return "$$\n\\begin{aligned}\n" + " \\\\\n".join(rows) + "\n\\end{aligned}\n$$"
 
 
 def _expanded(cid: str) -> list[str]:
@@ -210,10 +265,45 @@ def _expanded(cid: str) -> list[str]:
     lines = render.expanded_lines(expr, suffix, label=r"\text{margin}" if suffix else r"\Delta")
     body = "\\begin{aligned}\n" + " \\\\\n".join(lines) + "\n\\end{aligned}"
     return [f'??? info "Written out in components ({len(lines)} lines)"', "",
-            f"    This is {what} (its parts \\(x_k\\), \\(z_k\\) are written out below it), for \\(L = 4\\) point masses \\(m_l\\) at offsets \\((r_{{l,x}}, r_{{l,y}}, r_{{l,z}})\\) "
-            "with forces \\((F_{l,x}, F_{l,y}, F_{l,z})\\) and the rotational speed about \\(\\mathbf e_z\\). "
+            f"    This is {what}{_parts(lines)}, {_variables(expr)}. "
             f"The compact form above expands to it (largest relative difference {worst:.0e} on random states, checked when this page was built).",
             "", "    $$", *("    " + x for x in body.splitlines()), "    $$", ""]
+
+
+def _parts(lines: list[str]) -> str:
+    r"""What the rows after the margin name: the common parts \(x_k\) and the inner sums \(z_k\)."""
+    names = [n for n, mark in (("x_k", "x_{"), ("z_k", "z_{")) if any(x.startswith(mark) for x in lines)]
+    if not names:
+        return ""
+    return " (its parts " + " and ".join(f"\\({n}\\)" for n in names) + " are written out below it)"
+
+
+def _variables(expr) -> str:
+    r"""The element variables that ``expr`` contains, named as they print (\(r_{1 x}\): offset
+    of mass 1 along x), from its free symbols; the rotational speed is about \(\mathbf e_z\)."""
+    names = {str(x) for x in expr.free_symbols}
+    n = len({x.split("_")[1] for x in names if re.fullmatch(r"[mrF]_\d+(_[xyz])?", x)})
+
+    def comps(base: str) -> list[str]:
+        return [a for a in "xyz" if any(re.fullmatch(rf"{base}_\d+_{a}", x) for x in names)]
+
+    out = []
+    if any(re.fullmatch(r"m_\d+", x) for x in names):
+        out.append("masses \\(m_l\\)")
+    if comps("r"):
+        out.append("offsets from the centroid with components " + ", ".join(f"\\(r_{{l\\,{a}}}\\)" for a in comps("r")))
+    if comps("F"):
+        out.append("forces with components " + ", ".join(f"\\(F_{{l\\,{a}}}\\)" for a in comps("F")))
+    for base, what in (("omega", "angular velocity"), ("alpha", "angular acceleration")):
+        c = [a for a in "xyz" if f"{base}_{a}" in names]
+        if c:
+            out.append(f"{what} components " + ", ".join(f"\\(\\{base}_{a}\\)" for a in c))
+    if "tau" in names:
+        out.append("radius \\(\\tau\\)")
+    if not out:
+        return "with no element variables left"
+    listed = ", ".join(out[:-1]) + (" and " if len(out) > 1 else "") + out[-1]
+    return f"in the variables of \\(L = {n}\\) point masses (\\(l = 1, \\dots, {n}\\)): {listed}; the speed is the rotation about \\(\\mathbf e_z\\)"
 
 
 # --------------------------------------------------------------------------- claim blocks
@@ -304,11 +394,15 @@ def _claim_block(cid: str) -> str:
 
 
 def _summary_block() -> str:
+    """The report's summary line, which run it is (full or quick) and how to reproduce it."""
     from validation.report import summary_line
 
     rep = _report()
-    what = "the quick subset" if _state.get("quick") else "the checks"
-    return f"<p><code>{summary_line(rep['summary'])}</code> &mdash; {what}, from {_state.get('source', 'the report')}.</p>"
+    secs = sum(r.get("seconds") or 0.0 for r in rep["checks"])
+    what = ("the quick subset (<code>mdgs validate --quick</code>)" if _state.get("quick") else
+            "the full run (<code>mdgs validate</code>: every case, the hypothesis searches included)")
+    return (f"<p><code>{summary_line(rep['summary'])}</code> &mdash; {what}, from {_state.get('source', 'the report')}; "
+            f"its checks took {secs:.0f} s in all.</p>")
 
 
 _PAPER_ORDER = ("eq3", "lemmaA1", "eq17", "eq19", "eq23", "eq11", "eq30", "eq34", "eq35", "eq36", "eq37", "eq12", "eq15")
@@ -482,7 +576,7 @@ def _mjcf_block(rel: str, root: str) -> str:
         return sp.latex(e)
 
     def rows(mat, name: str) -> str:
-        """One entry per speed, each over lines of about 30 glyphs (a phone's column)."""
+        """One entry per speed, each over lines of about 26 glyphs (a phone's column)."""
         from validation.render import _split, _terms
 
         out = []
@@ -491,7 +585,7 @@ def _mjcf_block(rel: str, root: str) -> str:
             r = f"{k // n + 1}{k % n + 1}" if n > 1 else f"{k + 1}"
             terms = [sp.latex(t) for t in _terms(x)]
             terms = [t if i == 0 or t.startswith("-") else "+ " + t for i, t in enumerate(terms)]
-            body = _split(terms, 30)
+            body = _split(terms, 26)
             out.append(f"{name}_{{{r}}} &= {body[0]}")
             out += [f"&\\quad {b}" for b in body[1:]]
         return "\\begin{aligned}\n" + " \\\\\n".join(out) + "\n\\end{aligned}"

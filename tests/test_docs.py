@@ -49,16 +49,37 @@ def live_quick(tmp_path_factory):
     return run.stdout.strip().splitlines()[-1], out
 
 
+COMMITTED = ROOT / "docs" / "results" / "validation" / "full-report.json"
+
+
+def _hooks():
+    """docs/hooks.py as a module (mkdocs loads it by path)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("mdgs_docs_hooks", DOCS / "hooks.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 @pytest.fixture(scope="module")
-def site(live_quick, tmp_path_factory):
-    """The site built once, strictly, from the live quick report (no second validation run)."""
+def committed():
+    """The committed report of the full run that the site shows."""
+    import json
+
+    return json.loads(COMMITTED.read_text(encoding="utf-8"))
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    """The site built once, strictly, as a reader gets it: from the committed full report."""
     if not _MKDOCS:
         pytest.skip("mkdocs not installed")
     site = tmp_path_factory.mktemp("site") / "site"
     run = subprocess.run(
         [sys.executable, "-m", "mkdocs", "build", "--strict", "--site-dir", str(site)],
         cwd=ROOT, capture_output=True, text=True, timeout=600,
-        env={**os.environ, "NO_MKDOCS_2_WARNING": "1", "MDGS_REPORT": str(live_quick[1])},
+        env={**{k: v for k, v in os.environ.items() if k != "MDGS_REPORT"}, "NO_MKDOCS_2_WARNING": "1"},
     )
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
     return site, run.stdout + run.stderr
@@ -94,24 +115,40 @@ def test_mkdocs_build_strict(site):
     assert (site / "javascripts" / "mathjax" / "tex-chtml-full.js").is_file()
 
 
-def test_home_has_the_findings_table_and_the_exit_code(site):
+def test_home_has_the_findings_table_and_the_exit_code(site, committed):
+    """Home's claim -> verdict -> why -> what holds instead table: one row per claim of the paper,
+    its verdict and the corrected statement's verdict those of the committed full report."""
     home = _pages(site[0])["index.html"]
     from kane.claims import CLAIMS
 
-    for cid in ("eq23", "eq11", "eq30", "eq34", "eq35", "eq36", "eq37", "eq12"):  # refuted on the quick run
-        row = re.search(rf'href="theory/#{re.escape(cid)}".*?</tr>', home, re.S)
-        assert row and "v-refuted" in row.group(0), cid
-        assert CLAIMS[cid].corrected_id.replace(".", "-") in row.group(0), cid
+    verdicts = {c["id"]: c["verdict"] for c in committed["claims"]}
+    rows = 0
+    for cid in (c for c in _hooks()._PAPER_ORDER if c in verdicts):
+        row = re.search(rf'<tr><td[^>]*><a href="theory/#{re.escape(cid)}".*?</tr>', home, re.S)
+        assert row, cid
+        badges = re.findall(r'class="verdict v-([a-z-]+)"', row.group(0))
+        assert badges[0] == verdicts[cid].replace(" ", "-"), (cid, badges)
+        cc = CLAIMS[cid].corrected_id
+        if cc in verdicts:
+            assert cc.replace(".", "-") in row.group(0) and badges[1] == verdicts[cc].replace(" ", "-"), (cid, badges)
+        rows += 1
+    assert rows >= 12
+    for cid in ("eq23", "eq11", "eq30", "eq34", "eq35", "eq36", "eq37", "eq12"):  # refuted on the full run
+        assert verdicts[cid] == "refuted", cid
     assert "exit code is 1" in home
 
 
-def test_no_stale_summary_line(site, live_quick):
-    """Every summary line on the site is the live quick run's; none is typed into the sources."""
-    line, _ = live_quick
+def test_no_stale_summary_line(site, committed, live_quick):
+    """Every summary line on the site is the committed full run's; none is typed into the sources;
+    the README quotes the full run or a live quick run."""
+    from validation.report import summarize, summary_line
+
+    line = summary_line(committed["summary"])
+    assert committed["summary"] == summarize(committed["checks"])
     seen = []
     for name, html in _pages(site[0]).items():
         for m in _SUMMARY.findall(html):
-            assert m == line, f"{name} shows '{m}', a live quick run prints '{line}'"
+            assert m == line, f"{name} shows '{m}', the committed full report says '{line}'"
             seen.append(name)
     assert "index.html" in seen and "report/index.html" in seen
     for src in [*DOCS.glob("*.md"), *(ROOT / "kane").rglob("*.py"), *(ROOT / "validation").rglob("*.py"),
@@ -119,17 +156,68 @@ def test_no_stale_summary_line(site, live_quick):
         found = _SUMMARY.findall(src.read_text(encoding="utf-8"))
         assert not found, f"{src.relative_to(ROOT)} types a summary line {found}: generate it instead"
     readme = _SUMMARY.findall((ROOT / "README.md").read_text(encoding="utf-8"))
-    assert all(m == line or m == _README_FULL for m in readme), readme
+    assert all(m in (line, live_quick[0]) for m in readme), readme
 
 
-_README_FULL = "125 checks: 105 hold, 20 refuted, 0 errors"  # checked by test_readme_full_run_line (slow)
+def _key(row: dict) -> tuple:
+    return row["id"], row["case"], row["route"], row["clause"]
+
+
+def test_committed_report_is_the_current_full_run(committed, live_quick):
+    """The committed report is a full run of today's claims: the same claims, titles, statements
+    and clauses as kane; every check of a live quick run is in it with the same verdict; it holds
+    the checks that only the full run makes. Fails when a claim, a case or a verdict changed
+    and the report was not rewritten (`mdgs validate --json docs/results/validation/full-report.json`)."""
+    import json
+    from collections import Counter
+
+    from kane.claims import CHECKS
+
+    hooks = _hooks()
+    assert hooks.stale_report(committed) == []
+    quick = json.loads(live_quick[1].read_text(encoding="utf-8"))
+    full = Counter(_key(r) for r in committed["checks"])
+    missing = Counter(_key(r) for r in quick["checks"]) - full
+    assert not missing, f"checks of the quick run missing from the committed report: {sorted(missing)[:5]}"
+    verdict = {_key(r): r["verdict"] for r in committed["checks"]}
+    flipped = [(_key(r), r["verdict"], verdict[_key(r)]) for r in quick["checks"] if verdict[_key(r)] != r["verdict"]]
+    assert not flipped, f"verdicts of the quick run differ from the committed report: {flipped[:5]}"
+    full_only = {(s.claim_id, s.route) for s in CHECKS if not s.quick}  # e.g. the hypothesis searches
+    assert full_only and full_only <= {(r["id"], r["route"]) for r in committed["checks"]}
+    assert not hooks.is_quick(committed) and hooks.is_quick(quick)
+    assert len(committed["checks"]) > len(quick["checks"])
+
+
+def test_a_stale_report_is_caught(committed):
+    """stale_report names a changed statement, a claim kane no longer has and one it gained."""
+    import copy
+
+    hooks = _hooks()
+    rep = copy.deepcopy(committed)
+    rep["claims"][0]["statement"] += " (changed)"
+    rep["claims"].append({**rep["claims"][1], "id": "eq99"})
+    dropped = rep["claims"].pop(1)["id"]
+    found = " | ".join(hooks.stale_report(rep))
+    assert "statement changed" in found and "eq99" in found and dropped in found
+
+
+def test_theory_page_shows_the_full_runs_numbers(site, committed):
+    """Every refuted check of the full run appears on the derivation page with its number."""
+    theory = _pages(site[0])["theory/index.html"]
+    for r in committed["checks"]:
+        if r["verdict"] == "refuted" and not r["id"].endswith(".corrected"):
+            assert f"{r['residual']:.3g}" in theory, (r["id"], r["case"], r["residual"])
+    assert "the full run" in _pages(site[0])["report/index.html"]
 
 
 @pytest.mark.slow
-def test_readme_full_run_line():
+def test_readme_full_run_line(committed):
+    """A live full run ends with the committed report's summary line (the README quotes it)."""
+    from validation.report import summary_line
+
     run = subprocess.run([sys.executable, "-m", "mdgs.cli", "validate"], cwd=ROOT, capture_output=True, text=True, timeout=1800)
-    assert run.stdout.strip().splitlines()[-1] == _README_FULL
-    assert _README_FULL in (ROOT / "README.md").read_text(encoding="utf-8")
+    assert run.stdout.strip().splitlines()[-1] == summary_line(committed["summary"])
+    assert summary_line(committed["summary"]) in (ROOT / "README.md").read_text(encoding="utf-8")
 
 
 # ASCII math the issue found beside rendered math: Greek names, x_{...} and x_y subscripts,
