@@ -1,6 +1,7 @@
 """Where a single-trajectory rollout step of every model spends its time: arithmetic or overhead.
 
     python benchmarks/profile_step.py [--scene cubli-triple] [--models mdgs gns ...] [--frames 10] [--repeats 5]
+                                      [--compile] [--widths 100 50]
 
 One run, this machine, CPU, one torch thread, batch 1 (one trajectory), untrained weights (the cost
 of a step does not depend on training), on a ``tiny`` dataset of the scene written to a temporary
@@ -27,6 +28,13 @@ arithmetic: tensor creation (empty, zeros, ones, full, eye, arange, tensor/as_te
 views and shape changes (view, reshape, expand, unsqueeze, transpose, select, slice, as_strided,
 contiguous, clone), indexing and data movement (index, index_put, index_select, gather, scatter,
 cat, stack, nonzero, unique, masked_select), error checks (``_linalg_check_errors``), ``item``.
+
+``--compile`` profiles the ``torch.compile``d step (:func:`mdgs.models.compile_step`, compiled with
+inductor's per-kernel profiling on): each fused C++ kernel of the compiled graph
+(``graph_<k>_cpp_fused_<ops>``) counts as arithmetic, as do the library calls it makes
+(``aoti_torch_cpu_<op>_out``, classified by ``<op>``); the compiled graph's own entry
+(``## Call CompiledFxGraph``: its C++ launcher and buffer allocations), dynamo's guard check
+(``TorchDynamo Cache Lookup``) and the compiled region's wrappers are overhead.
 """
 
 from __future__ import annotations
@@ -67,9 +75,18 @@ ARITHMETIC = [
 _ARITH = [re.compile(p) for p in ARITHMETIC]
 
 
+_FUSED = re.compile(r"^graph_\d+_cpp_fused_")  # a compiled graph's fused kernel (--compile)
+_AOTI = re.compile(r"^aoti_torch_cpu_(\w+?)_out$")  # a library call from a compiled graph's C++ launcher
+
+
 def is_arithmetic(op: str) -> bool:
-    """Whether the profiler op ``op`` (e.g. ``aten::addmm``) is arithmetic (``ARITHMETIC``)."""
+    """Whether the profiler op ``op`` (e.g. ``aten::addmm``) is arithmetic (``ARITHMETIC``; module docstring
+    for the entries of a compiled step)."""
+    if _FUSED.search(op):
+        return True
     name = op.split("::", 1)[-1]
+    m = _AOTI.match(name)
+    name = m.group(1) if m else name
     return any(p.search(name) for p in _ARITH)
 
 
@@ -134,16 +151,28 @@ def main() -> None:
     ap.add_argument("--models", nargs="*", default=None, help="registry names (default: all)")
     ap.add_argument("--frames", type=int, default=10, help="steps per profiled rollout")
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--compile", action="store_true", help="profile the torch.compile'd step (module docstring)")
+    ap.add_argument("--widths", nargs="*", type=int, default=[], help="MDGS also at these hidden widths")
     args = ap.parse_args()
     torch.set_num_threads(1)
+    if args.compile:
+        import torch._inductor.config as inductor_config
+
+        from mdgs.models import compile_step
+
+        inductor_config.cpp.enable_kernel_profile = True  # each fused kernel a profiler entry
+        inductor_config.fx_graph_cache = False  # a cached graph compiled without those entries would hide them
     tr, te = tiny_splits(args.scene)
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, batch 1, CPU, 1 torch thread; per step, medians of "
-          f"{args.repeats} rollouts of {args.frames} steps")
+          f"{args.repeats} rollouts of {args.frames} steps" + ("; compiled steps" if args.compile else ""))
     print(f"{'model':22s}{'ms/step':>9s}{'prof ms':>9s}{'op ms':>8s}{'arith %':>9s}{'overhead ms':>13s}")
-    for label, model in registry_models(args.models or list(MODELS), tr):
+    for label, model in registry_models(args.models or list(MODELS), tr, tuple(args.widths)):
         if isinstance(model, str):
             print(f"{label:22s} refused: {model}")
             continue
+        if args.compile and not label.startswith("mujoco"):
+            model.bind(te)
+            compile_step(model)
         r = profile_model(model, te, args.frames, args.repeats)
         print(f"{label:22s}{r['ms']:>9.3f}{r['prof_ms']:>9.3f}{r['op_ms']:>8.3f}{100 * r['arith']:>9.0f}"
               f"{r['overhead_ms']:>13.3f}")

@@ -136,9 +136,9 @@ class JointSet:
         device = seg.device if device is None else torch.device(device)
         hit = self._cache.get(str(device))
         if hit is not None and torch.compiler.is_compiling():
-            # a compiled step reads the groups its eager warm-up built (a data-pointer comparison
-            # would split the compiled graph); a rebound scene replaces the entry, and dynamo's guard
-            # on this dict retraces
+            # a compiled step reads the groups an eager step built (compile_step runs one first, per
+            # binding) without the data-pointer comparison, which would split the compiled graph;
+            # binding a scene makes a new JointSet
             return hit[1]
         sig = tuple((a.data_ptr(), tuple(a.shape), a.dtype) for a in (seg, ref, mass)) + (n_obj,)
         if hit is not None and hit[0] == sig:

@@ -93,12 +93,22 @@ def test_constant_twist_has_nothing_to_train(test_split):
                     reason="torch.compile on a CPU needs a C compiler")
 def test_a_compiled_step_rolls_out_the_eager_trajectories(test_split):
     """compile_step swaps in a torch.compile'd step (a new function object) whose rollout is the
-    eager one; constant twist: the cheapest model to compile (seconds)."""
+    eager one as one graph, and rolling out the same split again compiles nothing new; constant twist: the
+    cheapest model to compile (seconds)."""
     from mdgs.models import compile_step
 
     ref = MODELS["constant-twist"].from_data(test_split)
     eager = rollout(ref, test_split, "cpu")
     assert "step" not in vars(ref)
+    from torch._dynamo.utils import counters
+
+    graphs = counters["stats"]["unique_graphs"]
     assert compile_step(ref) is ref and "step" in vars(ref)  # the instance's own (compiled) step
     compiled = rollout(ref, test_split, "cpu")
     np.testing.assert_allclose(compiled.x, eager.x, rtol=0, atol=1e-5)  # float32 fusion may reorder rounding
+    assert counters["stats"]["unique_graphs"] == graphs + 1  # the whole step one graph: no graph breaks
+    # a second rollout of the same split (rollout binds again) runs the graph already compiled
+    graphs = counters["stats"]["unique_graphs"]
+    again = rollout(ref, test_split, "cpu")
+    assert counters["stats"]["unique_graphs"] == graphs
+    np.testing.assert_array_equal(again.x, compiled.x)

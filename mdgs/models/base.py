@@ -126,6 +126,7 @@ class Simulator(nn.Module):
         self.history = 0
         self.future = 0  # frames after t + 1 a training pass needs (multi-step training)
         self._split: SplitData | None = None
+        self._binds = 0
         # follows .to(device) so that models without parameters know their device too
         self.register_buffer("_device_probe", torch.zeros(0), persistent=False)
 
@@ -167,6 +168,7 @@ class Simulator(nn.Module):
     def bind(self, split: SplitData) -> None:
         """Simulate the scene of ``split`` (its static graph and control map) from now on."""
         self._split = split
+        self._binds += 1  # compile_step warms a compiled step once per binding
 
     def config_dict(self) -> dict:
         """The resolved configuration, JSON-ready."""
@@ -225,13 +227,29 @@ def compile_step(model: Simulator) -> Simulator:
     fused kernels. The results are the eager step's up to float round-off (bit-identical for MDGS
     and constant twist, 1e-6 m apart for GNS over a rollout: benchmarks/bench_models.py
     ``--compile`` compares the two rollouts). A model whose step does not trace (MuJoCo, autodiff-in-the-step
-    models where compilation is refused) keeps running eagerly wherever dynamo falls back."""
+    models where compilation is refused) keeps running eagerly wherever dynamo falls back. Binding
+    the model again (as :func:`~mdgs.evaluate.rollout.rollout` and :func:`~mdgs.evaluate.cost.step_cost`
+    do) reuses the compiled graphs (tests/test_references.py)."""
     if not isinstance(model, Simulator):
         raise TypeError(f"compile_step takes a Simulator, not {type(model).__name__}")
     # cpp_wrapper: the compiled graph's kernels are launched from generated C++ rather than Python,
     # which is most of the per-step overhead left on a CPU (0.57 -> 0.43 ms per frame for MDGS at
     # hidden width 100, one trajectory, benchmarks/bench_models.py)
-    model.step = torch.compile(type(model).step.__get__(model), dynamic=False, options={"cpp_wrapper": True})
+    eager = type(model).step.__get__(model)
+    compiled = torch.compile(eager, dynamic=False, options={"cpp_wrapper": True})
+    warm: set = set()
+
+    def step(state: State, ctrl: torch.Tensor) -> State:
+        # the first step of each binding and batch shape runs eagerly: it fills the scene's caches
+        # (graph propagators, joint groups), which compiled steps then read as constants of one graph
+        # instead of building them in graph breaks
+        key = (model._binds, tuple(state.x.shape), state.x.dtype, str(state.x.device))
+        if key not in warm:
+            warm.add(key)
+            return eager(state, ctrl)
+        return compiled(state, ctrl)
+
+    model.step = step
     return model
 
 
