@@ -466,38 +466,11 @@ def _exit_codes_block() -> str:
 
 
 def _cli_block() -> str:
-    """Every command of the typer app: usage, what it does, every option (read from the app)."""
-    import typer
+    """Every command of the typer app (:func:`mdgs.cli.reference.markdown`: value types, defaults and
+    "required" read from the click help records that ``mdgs COMMAND --help`` prints)."""
+    from mdgs.cli.reference import markdown
 
-    from mdgs.cli import app
-
-    group = typer.main.get_command(app)
-    root = group.make_context("mdgs", [], resilient_parsing=True)
-    out = []
-    for name in sorted(group.commands):
-        cmd = group.commands[name]
-        ctx = cmd.make_context(name, [], parent=root, resilient_parsing=True)
-        help_text = (cmd.help or "").strip()
-        first, _, rest = help_text.partition("\n\n")
-        out += [f"## mdgs {name}", "", _plain(first), "", "```text", cmd.get_usage(ctx), "```", ""]
-        if rest.strip():
-            out += [_plain(" ".join(rest.split())), ""]
-        rows = []
-        for p in cmd.params:
-            if getattr(p, "hidden", False):
-                continue
-            names = ", ".join(f"<code>{html.escape(o)}</code>" for o in [*p.opts, *p.secondary_opts])
-            if getattr(p, "is_flag", False):
-                value = "flag"
-            else:
-                value = html.escape(p.metavar or (p.name.upper() if not p.opts[0].startswith("-") else type(p.default).__name__
-                                                  if p.default is not None else "TEXT"))
-            default = "&ndash;" if p.default in (None, False, ()) or p.required else f"<code>{html.escape(str(p.default))}</code>"
-            if not p.opts[0].startswith("-"):
-                names = f"<code>{html.escape(p.name.upper())}</code>" + (" (required)" if p.required else " (optional)")
-            rows.append([names, value, default, _plain(getattr(p, "help", None) or "")])
-        out += [_table(["option", "value", "default", "what it does"], rows, "stack options"), ""]
-    return "\n".join(out)
+    return markdown()
 
 
 _DIRS = re.compile(r"(?<![\w.])/(?:[^\s/;,]+/)+")  # the folders of an absolute path in a cell's reason
