@@ -235,6 +235,10 @@ def compile_step(model: Simulator) -> Simulator:
     # cpp_wrapper: the compiled graph's kernels are launched from generated C++ rather than Python,
     # which is most of the per-step overhead left on a CPU (0.57 -> 0.43 ms per frame for MDGS at
     # hidden width 100, one trajectory, benchmarks/bench_models.py)
+    # dynamo keeps the compiled variants of a step on the code object of the model class's step, shared by
+    # every instance: each compiled model adds one per batch shape, and past the limit (8 by default)
+    # dynamo would silently run the step eagerly
+    torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, 64)
     eager = type(model).step.__get__(model)
     compiled = torch.compile(eager, dynamic=False, options={"cpp_wrapper": True})
     warm: set = set()
