@@ -17,6 +17,9 @@ Placeholders (in any ``docs/*.md``)::
     {{ results_verdict }} the committed study's "Who wins, per scene" table
     {{ mjcf:PATH }}    Kane's equations of the MJCF file PATH (relative to the repository
                        root) derived by ``kane.mjcf.from_mjcf``, with the engine residuals
+    {{ bench:PATH }}   the fixed-width table a script under ``benchmarks/`` printed into the
+                       committed file PATH, as an HTML table (its comment, caption and legend
+                       lines as text), so that no figure is retyped
 
 The LaTeX comes from the very sympy expressions the checks evaluate (the compact vector forms
 are compared with them at build time: a disagreement stops the build). Verdicts and numbers come
@@ -526,6 +529,48 @@ def _results_verdict(root: str) -> str:
     return _table(t.header, [[html.escape(c) for c in r] for r in t.rows], "stack") + f"\n<p>{html.escape(t.note)}</p>"
 
 
+# --------------------------------------------------------------------------- benchmark outputs
+
+
+_BENCH = re.compile(r"\{\{\s*bench:([A-Za-z0-9_./-]+)\s*\}\}")
+
+
+def _bench_block(rel: str, root: str) -> str:
+    """The committed output ``rel`` of ``benchmarks/bench_models.py`` (``{{ bench:PATH }}``) as a table.
+
+    The header line starts with ``model``; its labels (separated by two or more spaces) end where
+    the right-aligned figures under them end, so each figure of a row goes to the column whose label
+    ends nearest to where the figure ends, and a row's empty columns stay empty. Lines before the
+    header (the ``#`` command line, the scene caption) and after the rows (the legend) become text.
+    """
+    path = os.path.join(root, rel)
+    if not os.path.isfile(path):
+        raise PluginError(f"{{{{ bench:{rel} }}}}: no such file under {root}.")
+    lines = [ln.rstrip() for ln in open(path, encoding="utf-8") if ln.strip()]
+    try:
+        h = next(i for i, ln in enumerate(lines) if ln.startswith("model "))
+    except StopIteration:
+        raise PluginError(f"{{{{ bench:{rel} }}}}: no header line starting with 'model'.") from None
+    labels = list(re.finditer(r"\S+(?: \S+)*", lines[h]))
+    ends = [m.end() for m in labels]
+    rows, k = [], h + 1
+    while k < len(lines) and re.match(r"\S.*? {2,}\S", lines[k]) and not lines[k].startswith(("ms/", "#")):
+        fields = list(re.finditer(r"\S+(?: \S+)*", lines[k]))
+        row = [""] * len(labels)
+        row[0] = fields[0].group()
+        for f in fields[1:]:
+            col = min(range(1, len(labels)), key=lambda c: abs(ends[c] - f.end()))
+            col = len(labels) - 1 if f.end() > ends[-1] + 2 else col  # a trailing note: the last column
+            row[col] = (row[col] + " " + f.group()).strip()
+        rows.append([html.escape(c) for c in row])
+        k += 1
+    command = [f"<code>{html.escape(ln.lstrip('# '))}</code>" for ln in lines[:h] if ln.startswith("#")]
+    caption = [html.escape(ln) for ln in lines[:h] if not ln.startswith("#")]
+    legend = [html.escape(ln) for ln in lines[k:]]
+    return "\n\n".join([" ".join(command + caption), _table([html.escape(m.group()) for m in labels], rows, "stack bench"),
+                         " ".join(legend)])
+
+
 # --------------------------------------------------------------------------- MJCF
 
 
@@ -612,6 +657,7 @@ def on_page_markdown(markdown: str, page, config, files, **kwargs) -> str:
 
     root = os.path.dirname(os.path.abspath(config["config_file_path"]))
     markdown = _MJCF.sub(lambda m: _mjcf_block(m.group(1), root), markdown)
+    markdown = _BENCH.sub(lambda m: _bench_block(m.group(1), root), markdown)
     return _PLACEHOLDER.sub(fill, markdown)
 
 

@@ -306,3 +306,23 @@ def test_no_development_log_in_pages(site):
         if hits:
             bad[name] = hits
     assert not bad, f"development-log wording on the site: {bad}"
+
+
+def test_bench_table_keeps_every_figure_in_its_column(tmp_path):
+    """{{ bench:PATH }} turns a benchmark's fixed-width output into a table without retyping it:
+    every figure of the committed compile benchmark lands in the cell under its header, and a
+    compiled row's absent params / train columns stay empty (not shifted left)."""
+    hooks = _hooks()
+    rel = "docs/results/benchmarks/bench_models-compile.txt"
+    out = hooks._bench_block(rel, str(ROOT))
+    lines = (ROOT / rel).read_text().splitlines()
+    head = next(ln for ln in lines if ln.startswith("model "))
+    labels = re.findall(r"\S+(?: \S+)*", head)
+    row = next(ln for ln in lines if ln.startswith("mdgs compiled"))
+    b1 = row.split()[2]  # "mdgs compiled <b1> ..."
+    cells = re.search(r"<tr><td data-label=\"model\">mdgs compiled</td>(.*?)</tr>", out).group(1)
+    assert f'data-label="{labels[1]}"></td>' in cells and f'data-label="{labels[2]}"></td>' in cells
+    assert f'data-label="{labels[3]}">{b1}</td>' in cells
+    figures = {t for ln in lines[lines.index(head) + 1:] if not ln.startswith("ms/")
+               for t in re.findall(r"\d+\.\d+|\d+", ln)}
+    assert figures and all(f in out for f in figures)
