@@ -209,7 +209,7 @@ def test_killed_study_resumes_with_each_cell_once_and_the_same_tables(clean_run,
     assert _accuracy_tables(read_results(out)) == _accuracy_tables(read_results(clean_run))
 
 
-@pytest.mark.parametrize("name", ["tiny", "small", "small-select", "rich", "paper"])
+@pytest.mark.parametrize("name", sorted(p.stem for p in (ROOT / "studies").glob("*.toml")))
 def test_shipped_study_files_load(name):
     study = load_study(ROOT / "studies" / f"{name}.toml")
     assert study.name == name and cells_of(study)
