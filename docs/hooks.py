@@ -186,12 +186,10 @@ def _case(case: str) -> str:
 
 
 def _table(head: list[str], rows: list[list[str]], cls: str = "") -> str:
-    """A raw HTML table (no blank lines, so Markdown leaves it alone)."""
-    h = "".join(f"<th>{c}</th>" for c in head)
-    body = "".join("<tr>" + "".join(f'<td data-label="{html.escape(re.sub(r"<[^>]+>", "", hd))}">{c}</td>'
-                                     for hd, c in zip(head, r, strict=True)) + "</tr>" for r in rows)
-    wrap = f' class="{cls}"' if cls else ""
-    return f"<div{wrap}><table><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table></div>"
+    """A raw HTML table (:func:`mdgs.cli.reference.table`, the one table writer of the docs)."""
+    from mdgs.cli.reference import table
+
+    return table(rows, head, cls)
 
 
 def _eq(claim) -> str:

@@ -109,12 +109,15 @@ def _cells(r: Row) -> list[str]:
 
 
 def table(rows, head=("option", "value", "default", "what it does"), cls: str = "stack options") -> str:
-    """A raw HTML table whose cells carry their column's name (``data-label``) for the stacked
-    layout on a phone (``docs/stylesheets/extra.css``)."""
+    """A raw HTML table (no blank lines, so Markdown leaves it alone) whose cells carry their
+    column's name (``data-label``, the header without its markup) for the stacked layout on a phone
+    (``docs/stylesheets/extra.css``); the docs hook draws its tables with it too."""
     h = "".join(f"<th>{c}</th>" for c in head)
-    body = "".join("<tr>" + "".join(f'<td data-label="{c}">{v}</td>' for c, v in zip(head, r, strict=True)) + "</tr>"
+    labels = [html.escape(re.sub(r"<[^>]+>", "", c)) for c in head]
+    body = "".join("<tr>" + "".join(f'<td data-label="{c}">{v}</td>' for c, v in zip(labels, r, strict=True)) + "</tr>"
                    for r in rows)
-    return f'<div class="{cls}"><table><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table></div>'
+    wrap = f' class="{cls}"' if cls else ""
+    return f"<div{wrap}><table><thead><tr>{h}</tr></thead><tbody>{body}</tbody></table></div>"
 
 
 def markdown(app=None) -> str:
