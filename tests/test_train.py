@@ -185,6 +185,50 @@ def test_pushforward_batches_carry_the_true_later_frames_and_train(data, tmp_pat
     assert np.isfinite(last["train_mse"])
 
 
+def test_unroll_scores_every_step_of_the_models_own_rollout_with_gradient_through_it(data):
+    """``unroll=K``: the loss is the mean over K + 1 steps of Eq. (10) of the network's prediction from
+    the state the model's own rollout (``step``: joints projected) reached, against the true frames;
+    and the gradient flows back through the earlier steps (it differs from the same loss with each
+    step's input cut from the graph). ``unroll`` with ``pushforward`` is refused."""
+    from mdgs.losses import mse_loss
+    from mdgs.models.base import State
+
+    with pytest.raises(ValueError, match="not both"):
+        ModelConfig(unroll=2, pushforward=2)
+    with pytest.raises(ValueError, match="unroll"):
+        ModelConfig(unroll=-1)
+    d = load_split(data / "train.h5")
+    K = 2
+    idx = d.pairs(0, K)[[3, 30, 61]]
+    b = batch_of(d, idx, "cpu", 0, K)
+    torch.manual_seed(0)
+    model = MODELS["mdgs"].from_data(d, ModelConfig(unroll=K, zero_init=False, variant="mdgs-nc"))
+    model.bind(d)
+    assert model.future == K
+    scene = model.scene_on("cpu")
+    moving = ~scene.static
+    scales = model.scales(scene, "cpu")
+    truth = [(b.x_next, b.v_next)] + [(b.x_future[:, k], b.v_future[:, k]) for k in range(K)]
+    ctrls = [b.ctrl] + [b.ctrl_future[:, k] for k in range(K)]
+
+    def by_hand(cut: bool):
+        s, terms = State(b.x, b.v), []
+        for k in range(K + 1):
+            x, v = (s.x.detach(), s.v.detach()) if cut else (s.x, s.v)
+            p = model(scene, x, v, model.node_controls(ctrls[k]), ctrl=ctrls[k])
+            terms.append(mse_loss(p.x, p.v, *truth[k], moving, *scales))
+            s = model.step(State(x, v), ctrls[k])
+        return torch.stack(terms).mean()
+
+    loss = model.losses(b)["mse"]
+    assert torch.allclose(loss, by_hand(False), rtol=1e-5), (loss, by_hand(False))
+    w = model.state.layers[0].weight if hasattr(model.state, "layers") else next(model.state.parameters())
+    g_full = torch.autograd.grad(loss, w)[0]
+    g_cut = torch.autograd.grad(by_hand(True), w)[0]
+    assert torch.isfinite(g_full).all()
+    assert not torch.allclose(g_full, g_cut, rtol=1e-3, atol=0), "no gradient through the earlier steps"
+
+
 def _same_weights(model, **kw):
     """The same weights and bound scene under other settings."""
     import dataclasses

@@ -124,6 +124,12 @@ class MDGSConfig:
         taken from the model's own state after K simulated steps (rollout steps, joint projection
         included, without gradient) against the true frame t + K + 1: the pushforward trick of
         Brandstetter et al. (2022), so the network also learns from the states its rollouts reach.
+    unroll : 0 (the paper: one-step L_mse); K > 0 trains on a K + 1 step rollout from the true frame
+        t *with* gradient through it (backpropagation through time, as in solver-in-the-loop
+        training, Um et al. 2020): each step starts from the previous step's output, projected
+        onto the joints as a rollout step is, and L_mse is the mean of the K + 1 one-step terms
+        against frames t + 1 .. t + K + 1. A training pass costs K + 1 network passes. Not
+        combined with ``pushforward``.
     features : the node features z_i: "paper" ([x || v || k], Section 3.1) or "local" (no absolute
         horizontal position: ``[x_i - c || x_i,z || v_i || w || k]`` with ``c``, ``w`` the centroid and
         angular velocity of the node's object, so a model that has seen a motion in one place knows it
@@ -159,6 +165,7 @@ class MDGSConfig:
     dense_max_nodes: int = 256
     actuation: str = "none"
     pushforward: int = 0
+    unroll: int = 0
     features: str = "paper"
     self_weight: bool = False
     loss: str = "mse"
@@ -198,6 +205,10 @@ class MDGSConfig:
             raise ValueError(f"integrator must be one of {', '.join(INTEGRATORS)}, got {self.integrator!r}")
         if isinstance(self.pushforward, bool) or not isinstance(self.pushforward, int) or self.pushforward < 0:
             raise ValueError(f"pushforward must be an integer of at least 0, got {self.pushforward!r}")
+        if isinstance(self.unroll, bool) or not isinstance(self.unroll, int) or self.unroll < 0:
+            raise ValueError(f"unroll must be an integer of at least 0, got {self.unroll!r}")
+        if self.unroll and self.pushforward:
+            raise ValueError("pushforward and unroll are two kinds of multi-step training: set one of them, not both")
         if self.actuation not in ACTUATION:
             raise ValueError(f"actuation must be one of {', '.join(ACTUATION)}, got {self.actuation!r}")
         if self.features not in FEATURES:
@@ -355,7 +366,7 @@ class MDGS(Simulator):
         self._sign: torch.Tensor | None = None
         self._joints = JointSet()
         self._drives = DriveSet()
-        self.future = int(config.pushforward)
+        self.future = int(max(config.pushforward, config.unroll))
 
     # --- construction ------------------------------------------------------------------------
     @classmethod
@@ -578,6 +589,19 @@ class MDGS(Simulator):
             q = self(scene, x, v, self.node_controls(c), ctrl=c)
             l_mse = l_mse + self._one_step_loss(scene, x, v, c, q, batch.x_future[:, -1], batch.v_future[:, -1],
                                                 moving, scales)
+        if cfg.unroll:  # a (K + 1)-step rollout with gradient through it, every step scored
+            terms = [l_mse]
+            x, v = p.x, p.v
+            for k in range(cfg.unroll):
+                if cfg.joints and self._joints:  # the state a rollout step would hand on
+                    x, v = project_joints(x, v, self._joints, scene.ref_shape.to(x.device), scene.obj.to(x.device),
+                                          scene.n_obj, scene.mass.to(x.device))
+                c = batch.ctrl_future[:, k]
+                q = self(scene, x, v, self.node_controls(c), ctrl=c)
+                terms.append(self._one_step_loss(scene, x, v, c, q, batch.x_future[:, k], batch.v_future[:, k],
+                                                 moving, scales))
+                x, v = q.x, q.v
+            l_mse = torch.stack(terms).mean()
         l_cst = constraint_loss(p.force, batch.x, batch.v, p.x, p.v, scene.mass, scene.tau, scene.obj, scene.n_obj,
                                 cfg.dt, moving=moving, bound=cfg.bound, speeds=speeds_of(cfg.variant),
                                 scale=cfg.force_scale * int(moving.sum()))  # Eqs. (13)-(15)
