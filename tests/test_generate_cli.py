@@ -204,3 +204,34 @@ def test_shards_on_two_machines_sharing_only_the_output_folder(tmp_path, monkeyp
         with h5py.File(single / f"{split}.h5") as a, h5py.File(shared / f"{split}.h5") as b:
             for name in a["frames"]:
                 np.testing.assert_array_equal(a["frames"][name][()], b["frames"][name][()], err_msg=name)
+
+
+def test_a_batch_finished_after_another_run_merged_the_split_is_not_an_error(reference, tmp_path, monkeypatch):
+    """Two runs on one OUT (e.g. two shares of a study) both simulate a batch; the one that merges
+    removes the parts folder while the other is still writing its part: that write finding its folder
+    gone is not an error when the merged split exists (the batch is in it), and the dataset is whole.
+    Without the merged split the same failure is still raised."""
+    import importlib
+    import shutil
+
+    gen = importlib.import_module("mdgs.data.generate")  # the module (mdgs.data's `generate` is the function)
+
+    out = tmp_path / "ds"
+    cfg = GenerateConfig(scene="cubli-single", out=str(out), preset="tiny", seed=3)
+    generate(cfg)
+    assert _digest(out) == reference and not (out / ".parts").exists()
+    real = gen.write_file
+
+    def merged_meanwhile(path, *a, **kw):  # the other run removes the parts folder mid-write
+        shutil.rmtree(Path(path).parent.parent, ignore_errors=True)
+        return real(path, *a, **kw)
+
+    monkeypatch.setattr(gen, "write_file", merged_meanwhile)
+    gen._worker_init(cfg)
+    job = plan(PRESETS["tiny"].counts(SCENES["cubli-single"].splits), PRESETS["tiny"].batch)[0]
+    attrs = {"seed": 3, "n_frames": 3, "preset": "tiny", "config_sha256": "x", "mdgs_version": "x"}
+    assert gen._run_job(job, attrs)[:3] == job
+    assert _digest(out) == reference
+    (out / f"{job[0]}.h5").unlink()  # no merged split: the vanished folder is a real failure
+    with pytest.raises(FileNotFoundError):
+        gen._run_job(job, attrs)

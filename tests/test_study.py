@@ -278,6 +278,37 @@ def test_a_cell_whose_run_another_share_trains_goes_last_and_runs_once(tmp_path,
     assert keys[-1] == learned.key(study) and len(keys) == len(set(keys)) == len(cells_of(study))
 
 
+def test_a_dataset_another_share_is_generating_is_waited_for_not_generated_twice(tmp_path, monkeypatch):
+    """Two shares needing one dataset: while one holds its generation lock the other waits, then
+    finds it made; generation runs once (two runs at once once removed a parts folder the other was
+    still writing into, which failed a cell)."""
+    import threading
+
+    import mdgs.study.runner as runner_mod
+    from mdgs.runs import LOCK_NAME, folder_lock
+
+    study = load_study(_write(tmp_path, GOOD))
+    sc = study.scenes[0]
+    made = []
+
+    class Done:
+        merged = True
+
+    monkeypatch.setattr(runner_mod, "generate", lambda cfg: made.append(cfg.out) or Done())
+    monkeypatch.setattr(runner_mod, "DATA_WAIT_SECONDS", 0.02)
+    out = tmp_path / "o"
+    held = folder_lock(out / "data", "another share", name=f"{LOCK_NAME}-data-{sc.name}")
+    held.__enter__()
+    got = []
+    waiter = threading.Thread(target=lambda: got.append(runner_mod._dataset(study, out, sc)))
+    waiter.start()
+    time.sleep(0.3)
+    assert waiter.is_alive() and made == []  # waiting, not generating beside the other share
+    held.__exit__(None, None, None)
+    waiter.join(10)
+    assert not waiter.is_alive() and got == [out / "data" / sc.name] and len(made) == 1
+
+
 def test_processes_with_overlapping_shares_never_run_a_cell_twice(tmp_path, monkeypatch):
     """Another process holds cell b (its cell lock) while this one runs a, and finishes b meanwhile:
     this process defers b, then finds b's line and skips it; every cell has one line."""

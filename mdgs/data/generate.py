@@ -234,7 +234,12 @@ def _run_job(job: tuple[str, int, int], base_attrs: dict) -> tuple[str, int, int
     }
     path = _part_path(Path(cfg.out), split, start, stop)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_file(path, attrs, loaded.mjcf, _WORKER["static"], frames, loaded.assets)
+    try:
+        write_file(path, attrs, loaded.mjcf, _WORKER["static"], frames, loaded.assets)
+    except FileNotFoundError:
+        # another run on the same OUT merged the split and removed the parts meanwhile: this batch is in it
+        if not (Path(cfg.out) / f"{split}.h5").exists():
+            raise
     return split, start, stop, (stop - start) * n_frames * loaded.spec.substeps, overflow
 
 

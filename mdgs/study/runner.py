@@ -121,6 +121,10 @@ def cells_of(study: StudyConfig) -> list[Cell]:
 
 # --------------------------------------------------------------------------- data
 
+#: Seconds between looks at a dataset that another share of the study is generating.
+DATA_WAIT_SECONDS = 2.0
+
+
 def _dataset(study: StudyConfig, out: Path, sc: SceneEntry, refine: int = 1, long: bool = False,
              variant: str | None = None) -> Path:
     """Generate (or find) a dataset of the study; returns its folder."""
@@ -133,7 +137,15 @@ def _dataset(study: StudyConfig, out: Path, sc: SceneEntry, refine: int = 1, lon
                          substeps=sc.substeps, partition=PartitionParams(refine=refine), **kw)
     if variant:
         cfg = GenerateConfig(scene=variant, out=str(folder), preset=study.preset, n_traj=study.trajectories or None)
-    res = generate(cfg)
+    while True:  # one process generates a dataset; another share that needs it waits (no duplicated work,
+        # and no share removing the parts folder while the other still writes into it)
+        try:
+            with folder_lock(folder.parent, f"mdgs study {study.name}: generating {folder.name}",
+                             name=f"{LOCK_NAME}-data-{folder.name}"):
+                res = generate(cfg)
+            break
+        except FolderBusy:
+            time.sleep(DATA_WAIT_SECONDS)
     if not res.merged:
         raise StudyError(f"dataset {folder} is incomplete (another process is generating it?); rerun the study")
     return folder
