@@ -127,7 +127,9 @@ class MDGSConfig:
     unroll : 0 (the paper: one-step L_mse); K > 0 trains on a K + 1 step rollout from the true frame
         t *with* gradient through it (backpropagation through time, as in solver-in-the-loop
         training, Um et al. 2020): each step starts from the previous step's output, projected
-        onto the joints as a rollout step is, and L_mse is the mean of the K + 1 one-step terms
+        onto the joints as a rollout step is (straight through: the projection's gradient is taken
+        as the identity, as the structural constraint's is, since the Kabsch SVD's own gradient is
+        unbounded for symmetric bodies), and L_mse is the mean of the K + 1 one-step terms
         against frames t + 1 .. t + K + 1. A training pass costs K + 1 network passes. Not
         combined with ``pushforward``.
     features : the node features z_i: "paper" ([x || v || k], Section 3.1) or "local" (no absolute
@@ -593,9 +595,11 @@ class MDGS(Simulator):
             terms = [l_mse]
             x, v = p.x, p.v
             for k in range(cfg.unroll):
-                if cfg.joints and self._joints:  # the state a rollout step would hand on
-                    x, v = project_joints(x, v, self._joints, scene.ref_shape.to(x.device), scene.obj.to(x.device),
-                                          scene.n_obj, scene.mass.to(x.device))
+                if cfg.joints and self._joints:  # the state a rollout step would hand on, straight through
+                    with torch.no_grad():  # (the Kabsch SVD's gradient is unbounded for symmetric bodies)
+                        xp, vp = project_joints(x, v, self._joints, scene.ref_shape.to(x.device),
+                                                scene.obj.to(x.device), scene.n_obj, scene.mass.to(x.device))
+                    x, v = x + (xp - x).detach(), v + (vp - v).detach()
                 c = batch.ctrl_future[:, k]
                 q = self(scene, x, v, self.node_controls(c), ctrl=c)
                 terms.append(self._one_step_loss(scene, x, v, c, q, batch.x_future[:, k], batch.v_future[:, k],
