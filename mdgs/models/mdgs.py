@@ -550,7 +550,7 @@ class MDGS(Simulator):
             f_c = torch.zeros_like(f_nc)
         f = f_c + f_nc  # Eq. (7)
         if self._drives and ctrl is not None and c.actuation in ("force", "step"):  # motors' known loads join F
-            f = f + actuation_forces(x, ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj,
+            f = f + actuation_forces(x.detach(), ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj,
                                      scene.mass.to(dev))
         lam = c.lam if c.lam is not None else 1.0 / c.force_scale
         out = self.state(obj_prop, torch.cat([z, lam * f], -1))  # Eqs. (8)-(9)
@@ -630,7 +630,9 @@ class MDGS(Simulator):
         dev = x.device
         sx, sv = self.scales(scene, dev)
         if self._drives and ctrl is not None and c.actuation in ("step", "prior"):
-            dv_act = c.dt * motor_accelerations(x, ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev),
+            # the pose enters without gradient (its Kabsch SVD has none for symmetric bodies; only an
+            # unrolled training step, whose x carries one, would differentiate it)
+            dv_act = c.dt * motor_accelerations(x.detach(), ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev),
                                                 scene.n_obj)
             out = out + torch.cat([torch.zeros_like(dv_act), dv_act / sv], -1)
         x1, v1 = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx, dv_scale=sv,
