@@ -1,0 +1,38 @@
+"""Where the Cubli's rollout error sits: each test trajectory's position MSE at t = 40, with its largest
+motor command before then, for the untrained references and any trained runs (docs/mdgs-experiments.md,
+"The motors' known loads").
+
+    python benchmarks/mdgs_probes/brake_trajectories.py DATA_FOLDER [LABEL=RUN_FOLDER ...]
+
+DATA_FOLDER holds a cubli-triple ``test.h5`` (e.g. a study's ``data/cubli-triple``); each RUN_FOLDER is
+a trained run (a study's ``runs/<cell>``), evaluated with the weights its selection rule kept. Prints,
+per model, the mean over trajectories (the study's t = 40 figure, 10^-3 m^2), each trajectory's
+error and the share of the total held by the trajectories with a brake command (above 5 N m; the
+commands are either below 2 N m or 11-12 N m) before t = 40.
+"""
+import sys
+
+import numpy as np
+import torch
+
+from mdgs.data.split import load_split
+from mdgs.evaluate.metrics import frame_of
+from mdgs.evaluate.rollout import rollout
+from mdgs.models import MODELS
+from mdgs.runs import load_run
+
+torch.set_num_threads(1)
+d = load_split(sys.argv[1] + "/test.h5")
+ct = MODELS["constant-twist"]
+models = {"constant twist": ct(ct.Config()), "constant twist + motors + joints": ct(ct.Config(motors=True, joints=True))}
+for arg in sys.argv[2:]:
+    label, _, path = arg.partition("=")
+    models[label] = load_run(path, "cpu")[0]
+t = frame_of(40, d.x.shape[1])
+brake = np.abs(d.ctrl[:, :t]).max((1, 2)) > 5.0
+print(f"test trajectories with a command above 5 N m (a brake) before t = 40: {np.flatnonzero(brake).tolist()} of {len(brake)}")
+for name, m in models.items():
+    e = rollout(m, d).pos_mse[:, t] * 1e3
+    print(f"{name}: mean {np.nanmean(e):.3g}; braking trajectories hold {np.nansum(e[brake]) / np.nansum(e):.1%}; "
+          f"median of the others {np.nanmedian(e[~brake]):.3g}")
+    print("    " + "  ".join(f"{k}:{v:.3g}" for k, v in enumerate(e)))
