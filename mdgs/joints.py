@@ -233,13 +233,16 @@ def _segment_sum(a: torch.Tensor, of: torch.Tensor, n: int) -> torch.Tensor:
 
 
 def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torch.Tensor, seg: torch.Tensor,
-                   n_obj: int, mass: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+                   n_obj: int, mass: torch.Tensor, pose: tuple | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Project ``x, v`` [B, N, 3] onto the joints (module docstring) -> ``x', v'`` in ``x``'s dtype.
 
     ref : [N, 3] element centroids in their body frames; seg : [N] object of each node;
     mass : [N] element masses (for the predicted twists). Nodes of objects that no enforced joint
     makes a child are returned unchanged. The joints are projected group by group
     (:meth:`JointSet.tensors`: one kind at one depth of the tree), each group in one batched pass.
+    pose : every object's placement ``(R [B, S, 3, 3], t [B, S, 3])`` when the caller already has it
+        (``x`` placed rigidly by :func:`mdgs.structure.align_with_pose`: the same fit, up to ``x``'s
+        rounding); otherwise fitted here (:func:`mdgs.structure.kabsch`).
     """
     if not joints:
         return x, v
@@ -248,7 +251,7 @@ def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torc
     xd, vd = x.to(f64), v.to(f64)
     seg = seg.to(dev)
     B = x.shape[0]
-    R, t = kabsch(ref.to(dev, f64), xd, seg, n_obj)  # [B, S, 3, 3], [B, S, 3]
+    R, t = pose if pose is not None else kabsch(ref.to(dev, f64), xd, seg, n_obj)  # [B, S, 3, 3], [B, S, 3]
     tw = twist(xd, vd, seg, n_obj, mass.to(dev))
     # every object's corrected pose and twist (velocity of its mass centre, mass centre), with the
     # world appended as object S (R = I, t = 0, at rest) when a joint hangs from it; tw keeps the predicted twists

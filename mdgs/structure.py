@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-__all__ = ["kabsch", "align_to_reference", "segment_mean", "fixes_rotation", "det3", "solve3"]
+__all__ = ["kabsch", "align_to_reference", "align_with_pose", "segment_mean", "fixes_rotation", "det3", "solve3"]
 
 
 def fixes_rotation(ref: np.ndarray) -> bool:
@@ -148,6 +148,15 @@ def align_to_reference(pred: torch.Tensor, ref: torch.Tensor, seg: torch.Tensor,
     -------
     [B, N, 3] aligned positions, dtype of ``pred``.
     """
+    return align_with_pose(pred, ref, seg, n_seg, weight, mask, straight_through)[0]
+
+
+def align_with_pose(pred: torch.Tensor, ref: torch.Tensor, seg: torch.Tensor, n_seg: int | None = None,
+                    weight: torch.Tensor | None = None, mask: torch.Tensor | None = None,
+                    straight_through: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`align_to_reference` and the placement it used: ``(aligned [B, N, 3], R [B, S, 3, 3], t [B, S, 3])``
+    (float64; every segment's Kabsch fit of ``pred``, masked or not), so that a later step needing the
+    objects' poses (the joint projection) does not fit them again."""
     with torch.set_grad_enabled(not straight_through and torch.is_grad_enabled()):
         R, t = kabsch(ref, pred.detach() if straight_through else pred, seg, n_seg, weight)
         p = (ref if ref.dim() == 3 else ref.unsqueeze(0)).to(torch.float64)
@@ -155,4 +164,4 @@ def align_to_reference(pred: torch.Tensor, ref: torch.Tensor, seg: torch.Tensor,
         aligned = aligned.to(pred.dtype)
     if mask is not None:
         aligned = torch.where(mask[None, :, None], aligned, pred.detach() if straight_through else pred)
-    return pred + (aligned - pred).detach() if straight_through else aligned
+    return (pred + (aligned - pred).detach() if straight_through else aligned), R, t

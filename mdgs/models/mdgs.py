@@ -45,7 +45,7 @@ from mdgs.models.base import Batch, ModelError, Simulator, State
 from mdgs.models.integrators import INTEGRATORS
 from mdgs.models.layers import GCN
 from mdgs.rigid import advance, perturb, twist
-from mdgs.structure import align_to_reference
+from mdgs.structure import align_with_pose
 
 __all__ = ["MDGSConfig", "ModelConfig", "VARIANTS", "Prediction", "MDGS", "MDGSNoConstraint",
            "MDGSSingleSpeed", "noise_sigmas", "CUBLI_NOISE", "INCREMENT_NOISE"]
@@ -554,11 +554,11 @@ class MDGS(Simulator):
                                      scene.mass.to(dev))
         lam = c.lam if c.lam is not None else 1.0 / c.force_scale
         out = self.state(obj_prop, torch.cat([z, lam * f], -1))  # Eqs. (8)-(9)
-        x_next, v_next = self._integrate(scene, x, v, out, ctrl)
+        x_next, v_next, pose = self._integrate(scene, x, v, out, ctrl)
         moving = scene.moving(dev)
-        if simulate and c.joints and self._joints:
+        if simulate and c.joints and self._joints:  # on the structure's placement (pose), not a second fit
             x_next, v_next = project_joints(x_next, v_next, self._joints, scene.ref_shape.to(dev), scene.obj.to(dev),
-                                            scene.n_obj, scene.mass.to(dev))
+                                            scene.n_obj, scene.mass.to(dev), pose)
         # static elements never move
         m = moving.view(1, N, 1)
         x_next = torch.where(m, x_next, x)
@@ -625,7 +625,8 @@ class MDGS(Simulator):
 
     def _integrate(self, scene: SceneGraph, x, v, out, ctrl) -> tuple:
         """``x', v'`` [B, N, 3] from g's output ``out`` [B, N, 6]: plus the motors' joint response over ``dt``
-        (``actuation`` prior or step), through the integrator, then the structural constraint module."""
+        (``actuation`` prior or step), through the integrator, then the structural constraint module; and
+        the objects' placement ``(R, t)`` that module fitted (None without it)."""
         c = self.config
         dev = x.device
         sx, sv = self.scales(scene, dev)
@@ -637,13 +638,15 @@ class MDGS(Simulator):
             out = out + torch.cat([torch.zeros_like(dv_act), dv_act / sv], -1)
         x1, v1 = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx, dv_scale=sv,
                                            dvc_scale=c.dvc_scale, dw_scale=c.dw_scale)
+        pose = None
         if c.structure:
-            x1 = align_to_reference(x1, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj, mask=scene.moving(dev))
-        return x1, v1
+            x1, *pose = align_with_pose(x1, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj,
+                                        mask=scene.moving(dev))
+        return x1, v1, pose
 
     def _zero_step(self, scene: SceneGraph, x, v, ctrl) -> tuple:
         """``x', v'`` of the state network's output zero (constant twist plus the priors; no joint projection)."""
-        return self._integrate(scene, x, v, torch.zeros(*x.shape[:-1], 6, dtype=x.dtype, device=x.device), ctrl)
+        return self._integrate(scene, x, v, torch.zeros(*x.shape[:-1], 6, dtype=x.dtype, device=x.device), ctrl)[:2]
 
     def loss_weights(self) -> dict[str, float]:
         return {"mse": 1.0, "cst": self.config.cst_weight}  # Section 3.4: summed
