@@ -229,7 +229,7 @@ def _point_velocity(vc: torch.Tensor, w: torch.Tensor, c: torch.Tensor, y: torch
 
 def _segment_sum(a: torch.Tensor, of: torch.Tensor, n: int) -> torch.Tensor:
     """Sum of ``a`` [B, M, ...] over the nodes of each joint of a group (``of`` [M]) -> [B, n, ...]."""
-    return a.new_zeros(a.shape[0], n, *a.shape[2:]).index_add_(1, of, a)
+    return a.new_zeros(a.shape[0], n, *a.shape[2:]).index_add(1, of, a)
 
 
 def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torch.Tensor, seg: torch.Tensor,

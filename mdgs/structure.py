@@ -66,8 +66,8 @@ def segment_mean(x: torch.Tensor, seg: torch.Tensor, n_seg: int, weight: torch.T
     ``weight`` [N] (default 1). Empty segments give 0.
     """
     w = torch.ones(seg.shape[0], dtype=x.dtype, device=x.device) if weight is None else weight.to(x.dtype)
-    num = x.new_zeros(x.shape[0], n_seg, x.shape[-1]).index_add_(1, seg, x if weight is None else x * w[None, :, None])
-    den = x.new_zeros(n_seg).index_add_(0, seg, w).clamp_min(torch.finfo(x.dtype).tiny)
+    num = x.new_zeros(x.shape[0], n_seg, x.shape[-1]).index_add(1, seg, x if weight is None else x * w[None, :, None])
+    den = x.new_zeros(n_seg).index_add(0, seg, w).clamp_min(torch.finfo(x.dtype).tiny)
     return num / den[None, :, None]
 
 
@@ -110,7 +110,7 @@ def kabsch(ref: torch.Tensor, pred: torch.Tensor, seg: torch.Tensor, n_seg: int 
         outer = pc.unsqueeze(-1) * qc.unsqueeze(-2)  # [B, N, 3, 3]
     else:
         outer = weight.to(torch.float64)[None, :, None, None] * pc.unsqueeze(-1) * qc.unsqueeze(-2)
-    H = q.new_zeros(B, n_seg, 3, 3).index_add_(1, seg, outer)
+    H = q.new_zeros(B, n_seg, 3, 3).index_add(1, seg, outer)
     # a diverged prediction (NaN/Inf) gets a NaN placement instead of an SVD error, so a rollout
     # marks the trajectory as diverged rather than aborting the whole batch
     # (branch-free: no host sync, one graph under torch.compile)
