@@ -1,7 +1,7 @@
 """Every model of the registry side by side on one scene: size, training step, rollout step, FLOP rate.
 
     python benchmarks/bench_models.py [--scene cubli-triple] [--models mdgs gns ...] [--batches 1 16 256]
-                                      [--widths 100 50] [--compile]
+                                      [--widths 100 50] [--compile [inductor] [aot]]
 
 One run, this machine, medians over repeats; printed per model:
 
@@ -16,9 +16,10 @@ One run, this machine, medians over repeats; printed per model:
   same scale.
 
 With ``--compile`` every torch model is measured a second time with its step compiled
-(:func:`mdgs.models.compile_step`), printed as ``NAME compiled`` with the seconds its first
-steps spent compiling, and its rollout of the test trajectories is compared with the eager one
-(largest position difference).
+(:func:`mdgs.models.compile_step`; ``--compile aot`` ahead of time with AOTInductor, ``--compile
+inductor aot`` both), printed as ``NAME compiled`` (``NAME aot``) with the seconds its first steps
+spent compiling, and its rollout of the test trajectories is compared with the eager one (largest
+position difference).
 
 The data is a ``tiny`` dataset of the scene written to a temporary folder. Untrained weights:
 the cost of a step does not depend on training.
@@ -42,6 +43,7 @@ from mdgs.data.split import SplitData, load_split
 from mdgs.evaluate.cost import step_cost
 from mdgs.evaluate.rollout import rollout
 from mdgs.models import MODELS, Simulator, batch_of, compile_step
+from mdgs.models.base import COMPILE_MODES
 
 
 def median_time(fn, repeats: int, warmup: int = 2) -> float:
@@ -87,23 +89,24 @@ def _matmul_rate(repeats: int = 20) -> float:
     return 2.0 * 8192 * 200 * 200 / median_time(lambda: a @ b, repeats)
 
 
-def _compiled_line(label: str, model: Simulator, te: SplitData, args) -> str:
+def _compiled_line(label: str, model: Simulator, te: SplitData, args, mode: str = "inductor") -> str:
     """The model with its step compiled: ms per trajectory-frame at each batch (after the compiling
     first steps, whose seconds are printed), and the largest position difference of a rollout of
     every test trajectory against the eager step."""
     eager = rollout(model, te, model.device)
+    name = label + (" compiled" if mode == "inductor" else f" {mode}")
     t0 = time.perf_counter()
-    compile_step(model)
+    compile_step(model, mode)
     try:
         for b in args.batches:  # compile each batch shape once, outside the timed repeats
             step_cost(model, te, batch=b, frames=2, repeats=1)
         compiled = rollout(model, te, model.device)
     except Exception as e:  # noqa: BLE001 - a model that does not compile says so and the table goes on
-        return f"{label + ' compiled':22s} refused: {type(e).__name__}: {str(e).splitlines()[0][:80]}"
+        return f"{name:22s} refused: {type(e).__name__}: {str(e).splitlines()[0][:80]}"
     compile_s = time.perf_counter() - t0
     costs = [step_cost(model, te, batch=b, frames=args.frames, repeats=args.repeats) for b in args.batches]
     diff = float(np.nanmax(np.abs(compiled.x - eager.x)))
-    return (f"{label + ' compiled':22s}{'':>10s}{'':>10s}" + "".join(f"{c['ms_per_trajectory_frame']:>12.3f}" for c in costs)
+    return (f"{name:22s}{'':>10s}{'':>10s}" + "".join(f"{c['ms_per_trajectory_frame']:>12.3f}" for c in costs)
             + f"   compile {compile_s:.0f} s, rollout max |dx| {diff:.1e} m")
 
 
@@ -118,7 +121,9 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--widths", nargs="*", type=int, default=[],
                     help="also MDGS at these GCN widths (hidden = global_dim; the default is 200)")
-    ap.add_argument("--compile", action="store_true", help="also every torch model with its step torch.compile'd")
+    ap.add_argument("--compile", nargs="*", choices=COMPILE_MODES, default=None,
+                    help="also every torch model with its step compiled: torch.compile (inductor, the default) "
+                         "and/or ahead of time (aot)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     names = args.models or list(MODELS)
@@ -164,12 +169,15 @@ def main() -> None:
                 + "".join(f"{c['ms_per_trajectory_frame']:>12.3f}" for c in costs) + f"{frac:>10s}")
         print(line, flush=True)
         rows.append(line)
-        if args.compile and label != "mujoco" and not label.startswith("mujoco "):
-            print(_compiled_line(label, model, te, args), flush=True)
+        if args.compile is not None and label != "mujoco" and not label.startswith("mujoco "):
+            for mode in args.compile or ["inductor"]:
+                print(_compiled_line(label, model, te, args, mode), flush=True)
+                del model.step  # back to the class's eager step for the next mode
     print("ms/tf bN: milliseconds per trajectory-frame of a rollout step at batch N (batch 1: one trajectory); "
           "% matmul: FLOP rate of the largest batch against the dense matmul above"
-          + ("; compiled: the same model with torch.compile (compile: seconds spent compiling every batch shape, "
-             "outside the timings; max |dx|: against the eager rollout)" if args.compile else ""))
+          + ("; compiled / aot: the same model with torch.compile / AOTInductor (compile: seconds spent compiling "
+             "every batch shape, outside the timings; max |dx|: against the eager rollout)"
+             if args.compile is not None else ""))
 
 
 if __name__ == "__main__":

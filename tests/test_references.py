@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -112,3 +114,24 @@ def test_a_compiled_step_rolls_out_the_eager_trajectories(test_split):
     again = rollout(ref, test_split, "cpu")
     assert counters["stats"]["unique_graphs"] == graphs
     np.testing.assert_array_equal(again.x, compiled.x)
+
+
+def test_ahead_of_time_compiled_mdgs_rolls_out_as_the_eager_step_and_refuses_what_does_not_export(test_split):
+    """``compile_step(model, "aot")``: an MDGS with random weights (so the state network acts) rolls out
+    every test trajectory as the eager step does, binding the same scene again reuses its package, and
+    an unknown mode is refused by name."""
+    from mdgs.models import compile_step
+    from mdgs.models.mdgs import ModelConfig
+
+    torch.manual_seed(0)
+    model = MODELS["mdgs"].from_data(test_split, ModelConfig(hidden=16, global_dim=16, zero_init=False))
+    eager = rollout(model, test_split, "cpu")
+    assert compile_step(model, "aot") is model
+    aot = rollout(model, test_split, "cpu")
+    np.testing.assert_allclose(aot.x, eager.x, rtol=0, atol=1e-5)  # float32 fusion may reorder rounding
+    assert np.abs(eager.x[:, -1] - test_split.x[:, -1]).max() > 1e-3  # the untrained network does move things
+    again = rollout(model, test_split, "cpu")  # bound again to the same scene: its package, the same numbers
+    np.testing.assert_array_equal(again.x, aot.x)
+    assert len(list(Path(model._aot_dir.name).iterdir())) == 1
+    with pytest.raises(ValueError, match="'jit' is not one of inductor, aot"):
+        compile_step(model, "jit")

@@ -18,6 +18,7 @@ Every tensor of a :class:`State` is batch-first, so rows of two states can be sp
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
@@ -26,7 +27,7 @@ from torch import nn
 
 from mdgs.data.split import SplitData
 
-__all__ = ["State", "Batch", "Simulator", "ModelError", "batch_of", "compile_step", "one_step_error"]
+__all__ = ["State", "Batch", "Simulator", "ModelError", "batch_of", "compile_step", "COMPILE_MODES", "one_step_error"]
 
 
 class ModelError(Exception):
@@ -218,43 +219,112 @@ class Simulator(nn.Module):
         return sum(p.numel() for p in self.parameters())
 
 
-@torch.no_grad()
-def compile_step(model: Simulator) -> Simulator:
-    """Give ``model`` a ``torch.compile``d rollout step (in place; returns the model).
+#: What :func:`compile_step` can compile a step with.
+COMPILE_MODES = ("inductor", "aot")
 
-    ``model.step`` becomes one compiled graph per batch shape (``dynamic=False``): the first step
-    of each new batch size compiles (seconds to tens of seconds on a CPU), later steps run the
-    fused kernels. The results are the eager step's up to float round-off (bit-identical for MDGS
-    and constant twist, 1e-6 m apart for GNS over a rollout: benchmarks/bench_models.py
-    ``--compile`` compares the two rollouts). A model whose step does not trace (MuJoCo, autodiff-in-the-step
-    models where compilation is refused) keeps running eagerly wherever dynamo falls back. Binding
-    the model again (as :func:`~mdgs.evaluate.rollout.rollout` and :func:`~mdgs.evaluate.cost.step_cost`
-    do) reuses the compiled graphs (tests/test_references.py)."""
+
+@torch.no_grad()
+def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
+    """Give ``model`` a compiled rollout step (in place; returns the model).
+
+    ``mode="inductor"`` (``torch.compile``): ``model.step`` becomes one compiled graph per batch
+    shape (``dynamic=False``): the first step of each new batch size compiles (seconds to tens of
+    seconds on a CPU), later steps run the fused kernels. The results are the eager step's up to float
+    round-off (bit-identical for MDGS and constant twist, 1e-6 m apart for GNS over a rollout:
+    benchmarks/bench_models.py ``--compile`` compares the two rollouts). A model whose step does not
+    trace (MuJoCo, autodiff-in-the-step models where compilation is refused) keeps running eagerly
+    wherever dynamo falls back. Binding the model again (as :func:`~mdgs.evaluate.rollout.rollout` and
+    :func:`~mdgs.evaluate.cost.step_cost` do) reuses the compiled graphs (tests/test_references.py).
+
+    ``mode="aot"`` (AOTInductor): the step of each binding and batch shape is exported
+    (``torch.export``), compiled ahead of time into a package in a temporary folder and called
+    directly, with no dynamo guard check per step: the fastest single-trajectory step (MDGS on the
+    Cubli, width 50: 0.21 against 0.36 ms per frame for ``inductor``, benchmarks/bench_models.py
+    ``--compile aot``). Inference only (no gradient); the weights and the bound scene are compiled
+    in: a package is reused for the same scene (by its static arrays) and batch shape, a new scene
+    compiles its own, and weights changed after compiling are not seen (compile after training). A step that does not export
+    (a data-dependent graph, e.g. a radius graph) raises :class:`ModelError` naming ``inductor``."""
     if not isinstance(model, Simulator):
         raise TypeError(f"compile_step takes a Simulator, not {type(model).__name__}")
-    # cpp_wrapper: the compiled graph's kernels are launched from generated C++ rather than Python,
-    # which is most of the per-step overhead left on a CPU (0.57 -> 0.43 ms per frame for MDGS at
-    # hidden width 100, one trajectory, benchmarks/bench_models.py)
+    if mode not in COMPILE_MODES:
+        raise ValueError(f"compile mode {mode!r} is not one of {', '.join(COMPILE_MODES)}")
     # dynamo keeps the compiled variants of a step on the code object of the model class's step, shared by
     # every instance: each compiled model adds one per batch shape, and past the limit (8 by default)
     # dynamo would silently run the step eagerly
     torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, 64)
     eager = type(model).step.__get__(model)
-    compiled = torch.compile(eager, dynamic=False, options={"cpp_wrapper": True})
+    # cpp_wrapper: the compiled graph's kernels are launched from generated C++ rather than Python,
+    # which is most of the per-step overhead left on a CPU (0.57 -> 0.43 ms per frame for MDGS at
+    # hidden width 100, one trajectory, benchmarks/bench_models.py)
+    compiled = torch.compile(eager, dynamic=False, options={"cpp_wrapper": True}) if mode == "inductor" else None
     warm: set = set()
+    packages: dict = {}
+    scenes: dict = {}
 
     def step(state: State, ctrl: torch.Tensor) -> State:
         # the first step of each binding and batch shape runs eagerly: it fills the scene's caches
         # (graph propagators, joint groups), which compiled steps then read as constants of one graph
         # instead of building them in graph breaks
-        key = (model._binds, tuple(state.x.shape), state.x.dtype, str(state.x.device))
+        key = (model._binds, tuple(state.x.shape), state.x.dtype, str(state.x.device),
+               tuple(sorted(state.extra)))
         if key not in warm:
             warm.add(key)
             return eager(state, ctrl)
-        return compiled(state, ctrl)
+        if compiled is not None:
+            return compiled(state, ctrl)
+        if model._binds not in scenes:  # rebinding the same scene (every rollout does) reuses its packages
+            scenes[model._binds] = _scene_fingerprint(model._split)
+        pkey = (scenes[model._binds], *key[1:])
+        if pkey not in packages:
+            packages[pkey] = _aot_step(model, eager, state, ctrl)
+        names = key[-1]
+        out = packages[pkey](state.x, state.v, ctrl, *(state.extra[k] for k in names))
+        return State(out[0], out[1], dict(zip(names, out[2:], strict=True)))
 
     model.step = step
     return model
+
+
+def _scene_fingerprint(split: SplitData | None) -> str:
+    """A hash of what a bound scene compiles into a step: the split's identity and static arrays."""
+    import hashlib
+    import json
+
+    if split is None:
+        return ""
+    h = hashlib.sha256(json.dumps(split.identity(), sort_keys=True).encode())
+    for k in sorted(split.static):
+        a = np.ascontiguousarray(split.static[k])
+        h.update(k.encode() + str(a.dtype).encode() + str(a.shape).encode() + a.tobytes())
+    return h.hexdigest()
+
+
+def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor):
+    """The eager step for ``state``'s batch shape exported and compiled by AOTInductor, loaded: a
+    callable ``(x, v, ctrl, *extra) -> (x', v', *extra')``. The package lives in a temporary folder
+    removed with the model."""
+    import tempfile
+
+    names = sorted(state.extra)
+
+    class Step(nn.Module):
+        def forward(self, x, v, c, *extra):
+            s = eager(State(x, v, dict(zip(names, extra, strict=True))), c)
+            return (s.x, s.v, *(s.extra[k] for k in names))
+
+    if getattr(model, "_aot_dir", None) is None:
+        model._aot_dir = tempfile.TemporaryDirectory(prefix="mdgs-aot-")
+    folder = Path(model._aot_dir.name)
+    path = str(folder / f"step-{len(list(folder.iterdir()))}.pt2")  # one package per binding and batch shape
+    args = (state.x, state.v, ctrl, *(state.extra[k] for k in names))
+    try:
+        with torch.no_grad():
+            program = torch.export.export(Step(), args, strict=False)
+            torch._inductor.aoti_compile_and_package(program, package_path=path)
+    except Exception as e:  # noqa: BLE001 - torch.export's and inductor's many failure types
+        raise ModelError(f"the step of {model.name!r} does not compile ahead of time ({type(e).__name__}: "
+                         f"{str(e).splitlines()[0][:120]}); use compile mode 'inductor'") from e
+    return torch._inductor.aoti_load_package(path)
 
 
 def one_step_error(model: Simulator, d: SplitData, dev, batch_size: int = 64, max_pairs: int = 0) -> float:
