@@ -239,11 +239,11 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
     ``mode="aot"`` (AOTInductor): the step of each binding and batch shape is exported
     (``torch.export``), compiled ahead of time into a package in a temporary folder and called
     directly, with no dynamo guard check per step: the fastest single-trajectory step (MDGS on the
-    Cubli, width 50: 0.21 against 0.36 ms per frame for ``inductor``, benchmarks/bench_models.py
+    Cubli, width 50: 0.24 against 0.41 ms per frame for ``inductor``, benchmarks/bench_models.py
     ``--compile aot``). Inference only (no gradient); the weights and the bound scene are compiled
     in: a package is reused for the same scene (by its static arrays) and batch shape, a new scene
     compiles its own, and weights changed after compiling are not seen (compile after training). A step that does not export
-    (a data-dependent graph, e.g. a radius graph) raises :class:`ModelError` naming ``inductor``."""
+    raises :class:`ModelError` naming ``inductor``."""
     if not isinstance(model, Simulator):
         raise TypeError(f"compile_step takes a Simulator, not {type(model).__name__}")
     if mode not in COMPILE_MODES:
