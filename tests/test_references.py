@@ -116,7 +116,7 @@ def test_a_compiled_step_rolls_out_the_eager_trajectories(test_split):
     np.testing.assert_array_equal(again.x, compiled.x)
 
 
-def test_ahead_of_time_compiled_mdgs_rolls_out_as_the_eager_step_and_refuses_what_does_not_export(test_split):
+def test_ahead_of_time_compiled_mdgs_rolls_out_as_the_eager_step_and_reuses_its_package(test_split):
     """``compile_step(model, "aot")``: an MDGS with random weights (so the state network acts) rolls out
     every test trajectory as the eager step does, binding the same scene again reuses its package, and
     an unknown mode is refused by name."""
