@@ -320,6 +320,23 @@ def test_evaluate_writes_report_and_plots(data, run, tmp_path):
     assert "reference" in res.output
 
 
+def test_evaluate_with_the_ahead_of_time_step_reports_the_eager_rollout(data, run, tmp_path):
+    """``mdgs evaluate --compile aot``: the rollout errors are the eager evaluation's (float32 fusion
+    may reorder rounding: relative 1e-5), the report says which step ran, and an unknown mode is one
+    sentence with exit 2."""
+    eager, aot = tmp_path / "eager.json", tmp_path / "aot.json"
+    for path, extra in ((eager, []), (aot, ["--compile", "aot"])):
+        res = runner.invoke(app, ["evaluate", str(run), "--data", str(data), "--json", str(path), *extra])
+        assert res.exit_code == 0, res.output
+    a, b = (json.loads(p.read_text())["runs"][0] for p in (eager, aot))
+    assert (a["compiled"], b["compiled"]) == ("none", "aot")
+    curves = [np.array(r["rollout_mse_curve"], dtype=float) for r in (a, b)]  # None (NaN) past a divergence
+    np.testing.assert_allclose(curves[1], curves[0], rtol=1e-5, atol=1e-12)
+    assert np.isfinite(curves[0][:5]).all()  # some frames to compare (the tiny overfit run may diverge later)
+    res = runner.invoke(app, ["evaluate", str(run), "--data", str(data), "--compile", "jit"])
+    assert res.exit_code == 2 and "--compile jit is not one of none, inductor, aot" in res.output
+
+
 def test_constant_twist_reference_keeps_each_body_twist_and_shape(data):
     """One reference step from a recorded frame: same twist per body, same shapes, static nodes fixed."""
     from mdgs.graphs import SceneGraph

@@ -54,6 +54,9 @@ def evaluate_cmd(
                                              "repeatable. constant-twist "
                                              "is always included."),
     device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),
+    compile_mode: str = typer.Option("none", "--compile", help="The runs' step: none (eager), inductor (torch.compile) "
+                                "or aot (compiled ahead of time; fastest for one trajectory, about a minute "
+                                "to compile); ms_per_frame then times the compiled step."),
     list_models: bool = typer.Option(False, "--list-models", help="List the models of the registry and exit."),
 ) -> None:
     """Roll out whole test trajectories; rollout MSE at t=40 and t=110 (m^2), curves and plots."""
@@ -73,7 +76,7 @@ def evaluate_cmd(
         fail(f"--split {split} is not one of train, valid, test")
     refs = [_parse_reference(r) for r in reference or []]
     try:
-        rep = evaluate([str(r) for r in runs], data, split, json_path, device, traj, refs)
+        rep = evaluate([str(r) for r in runs], data, split, json_path, device, traj, refs, compile_mode)
     except (DatasetError, RunError, ModelError) as e:
         fail(str(e))
     agg = rep["aggregate"]

@@ -19,6 +19,7 @@ from mdgs.evaluate.metrics import REPORT_TIMES, aggregate, rollout_metrics
 from mdgs.evaluate.plots import plot_rollout_mse, plot_trajectory
 from mdgs.evaluate.rollout import DIVERGENCE_FACTOR, Rollout
 from mdgs.models import Simulator, get_model, one_step_error
+from mdgs.models.base import COMPILE_MODES
 from mdgs.runs import RunError, atomic_json, check_run_folder, load_run, resolve_device
 
 __all__ = ["DIVERGENCE_FACTOR", "REPORT_TIMES", "Rollout", "evaluate", "evaluate_run",
@@ -42,10 +43,21 @@ def _check_identity(run, d: SplitData, want: dict) -> bool:
     return True
 
 
-def evaluate_run(run: str | os.PathLike, d: SplitData, dev, batch_size: int = 64) -> tuple[dict, Rollout]:
-    """Evaluate one run on a loaded split -> (report dict, rollout). Raises RunError on a mismatch."""
+def evaluate_run(run: str | os.PathLike, d: SplitData, dev, batch_size: int = 64,
+                 compile_mode: str = "none") -> tuple[dict, Rollout]:
+    """Evaluate one run on a loaded split -> (report dict, rollout). Raises RunError on a mismatch.
+
+    ``compile_mode``: "none" (the eager step), or a mode of :func:`mdgs.models.compile_step` ("inductor",
+    "aot"), compiled for the rollout's batch shape before the rollout, so ``ms_per_frame`` times the
+    compiled step and not its compiling."""
     model, state = load_run(run, dev)
     variant = _check_identity(run, d, state["data_identity"])
+    if compile_mode != "none":
+        from mdgs.evaluate.cost import step_cost
+        from mdgs.models import compile_step
+
+        compile_step(model, compile_mode)
+        step_cost(model, d, batch=d.x.shape[0], frames=2, repeats=1)  # the eager first step, then compiling
     r = _rollout.rollout(model, d, dev)
     T, F = r.pos_mse.shape
     rep = {
@@ -90,17 +102,20 @@ def evaluate_reference(model: Simulator, d: SplitData, dev) -> tuple[dict, Rollo
 
 def evaluate(runs: list[str | os.PathLike], data: str | os.PathLike, split: str = "test",
              json_path: str | os.PathLike | None = None, device: str = "auto", traj: int = 0,
-             references: list[tuple[str, dict]] = ()) -> dict:
+             references: list[tuple[str, dict]] = (), compile_mode: str = "none") -> dict:
     """Evaluate runs (one per seed) on ``<data>/<split>.h5``; write the JSON report and plots.
 
     ``references``: extra non-learned models as ``(name, config kwargs)``, e.g.
     ``[("mujoco", {"dt_factor": 20})]``; the constant-twist reference is always included
-    (report key ``reference``; every reference also in ``references``).
+    (report key ``reference``; every reference also in ``references``). ``compile_mode``: the learned
+    models' step, as :func:`evaluate_run` takes it (the references run eagerly).
     The report goes to ``json_path`` or, by default, ``<run>/evaluation-<split>.json`` for one
     run and ``<parent of the first run>/evaluation-<split>.json`` for several; the plots
     ``<stem>-rollout-mse.png`` and ``<stem>-trajectory.png`` beside it. Returns the report.
     """
     dev = resolve_device(device)
+    if compile_mode not in ("none", *COMPILE_MODES):
+        raise RunError(f"--compile {compile_mode} is not one of none, {', '.join(COMPILE_MODES)}")
     if not runs:
         raise RunError("name at least one run folder to evaluate")
     for run in runs:  # the run folders first: a default report path lies inside one
@@ -127,7 +142,8 @@ def evaluate(runs: list[str | os.PathLike], data: str | os.PathLike, split: str 
         refs.append(evaluate_reference(cls(cls.Config(**kw)), d, dev)[0])
     reps, rolls = [], []
     for run in runs:
-        rep, r = evaluate_run(run, d, dev)
+        rep, r = evaluate_run(run, d, dev, compile_mode=compile_mode)
+        rep["compiled"] = compile_mode
         reps.append(rep)
         rolls.append(r)
     report = {
