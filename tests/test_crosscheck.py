@@ -141,9 +141,21 @@ def test_lemma_comparison_detects_a_missing_parallel_axis_term():
 def test_element_union_equals_undivided_body_for_random_mass_distributions(
     k, jitter, seed, mass, half
 ):
+    import mujoco
+
+    from kane.systems import undivided_box
+
     els = partition_box_k(half, k, mass=mass, rng=np.random.default_rng(seed), jitter=jitter)
     out = cc._lemma_numeric(els, half, n_states=2, seed=seed)
-    assert max(out.values()) <= cc.RIGID_RTOL
+    assert max(out["pinocchio_rnea"], out["pinocchio_crba"]) <= cc.RIGID_RTOL
+    # MuJoCo's compiler takes a body's inertial frame as its body frame (body_sameframe) when the mass
+    # centre's offset is tiny (between 1e-7 and 1e-6 m here), dropping that offset from the undivided
+    # body but not from the element model, where it is a child body's position: a residual of order
+    # offset / size (found by this test: k=1, jitter=1e-8, half=(0.25, 0.5, 0.75) gives 5.4e-9).
+    whole = mujoco.MjModel.from_xml_string(undivided_box(els, half_extents=half).mjcf())
+    offset = float(np.abs(whole.body_ipos[1]).max()) if whole.body_sameframe[1] else 0.0
+    tol = cc.RIGID_RTOL + 10.0 * offset / min(half)
+    assert max(out["mujoco_inverse"], out["mujoco_mass"]) <= tol, (out, offset)
 
 
 # ---- the public checks ------------------------------------------------------------------------
