@@ -68,6 +68,7 @@ def evaluate_run(run: str | os.PathLike, d: SplitData, dev, batch_size: int = 64
         "generalization_variant": variant,
         "model": state["model_name"],
         "parameters": model.parameter_count(),
+        "compiled": compile_mode,
         "epochs_trained": int(state["epoch"]) + 1,
         "trajectories": T,
         "frames": F,
@@ -143,7 +144,6 @@ def evaluate(runs: list[str | os.PathLike], data: str | os.PathLike, split: str 
     reps, rolls = [], []
     for run in runs:
         rep, r = evaluate_run(run, d, dev, compile_mode=compile_mode)
-        rep["compiled"] = compile_mode
         reps.append(rep)
         rolls.append(r)
     report = {

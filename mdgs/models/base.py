@@ -236,7 +236,7 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
     wherever dynamo falls back. Binding the model again (as :func:`~mdgs.evaluate.rollout.rollout` and
     :func:`~mdgs.evaluate.cost.step_cost` do) reuses the compiled graphs (tests/test_references.py).
 
-    ``mode="aot"`` (AOTInductor): the step of each binding and batch shape is exported
+    ``mode="aot"`` (AOTInductor): the step of each scene and batch shape is exported
     (``torch.export``), compiled ahead of time into a package in a temporary folder and called
     directly, with no dynamo guard check per step: the fastest single-trajectory step (MDGS on the
     Cubli, width 50: 0.24 against 0.41 ms per frame for ``inductor``, benchmarks/bench_models.py
@@ -315,7 +315,7 @@ def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor):
     if getattr(model, "_aot_dir", None) is None:
         model._aot_dir = tempfile.TemporaryDirectory(prefix="mdgs-aot-")
     folder = Path(model._aot_dir.name)
-    path = str(folder / f"step-{len(list(folder.iterdir()))}.pt2")  # one package per binding and batch shape
+    path = str(folder / f"step-{len(list(folder.iterdir()))}.pt2")  # one package per scene and batch shape
     args = (state.x, state.v, ctrl, *(state.extra[k] for k in names))
     try:
         with torch.no_grad():
