@@ -135,3 +135,33 @@ def test_ahead_of_time_compiled_mdgs_rolls_out_as_the_eager_step_and_reuses_its_
     assert len(list(Path(model._aot_dir.name).iterdir())) == 1
     with pytest.raises(ValueError, match="'jit' is not one of inductor, aot"):
         compile_step(model, "jit")
+
+
+def test_compiled_cost_falls_back_mode_by_mode_and_says_why(test_split, monkeypatch):
+    """``compiled_cost``: a step that compiles neither ahead of time nor by torch.compile is timed eagerly and
+    the result names both refusals; MuJoCo (C code) is timed as it is; and the ahead-of-time step it
+    times is the eager rollout's (constant twist: the cheapest model to compile)."""
+    import mdgs.evaluate.cost as cost
+    from mdgs.models import compile_step
+
+    real = compile_step
+
+    def refuse(model, mode):
+        raise ModelError(f"no {mode} today")
+
+    monkeypatch.setattr(cost, "compile_step", refuse)
+    ref = MODELS["constant-twist"].from_data(test_split)
+    c = cost.compiled_cost(ref, test_split, "aot")
+    assert (c["requested"], c["compiled"]) == ("aot", "none")
+    assert ref.step.__func__ is type(ref).step  # the eager step, timed
+    assert "aot: ModelError: no aot today" in c["note"] and "inductor: ModelError: no inductor today" in c["note"]
+    assert c["single"]["batch"] == 1 and c["batched"]["batch"] == test_split.x.shape[0]
+    c = cost.compiled_cost(_mujoco(test_split), test_split, "aot")
+    assert c["compiled"] == "none" and "not torch code" in c["note"] and c["single"]["ms_per_frame"] > 0
+    monkeypatch.setattr(cost, "compile_step", real)
+    eager = rollout(ref, test_split, "cpu")
+    c = cost.compiled_cost(ref, test_split, "aot")
+    assert (c["compiled"], c["note"]) == ("aot", "") and c["compile_seconds"] > 0
+    np.testing.assert_allclose(rollout(ref, test_split, "cpu").x, eager.x, rtol=0, atol=1e-5)
+    with pytest.raises(ValueError, match="'jit' is not one of aot, inductor, none"):
+        cost.compiled_cost(ref, test_split, "jit")

@@ -209,6 +209,42 @@ def test_killed_study_resumes_with_each_cell_once_and_the_same_tables(clean_run,
     assert _accuracy_tables(read_results(out)) == _accuracy_tables(read_results(clean_run))
 
 
+def test_recost_times_each_row_once_resumes_and_the_speed_table_says_how_each_step_ran(clean_run, tmp_path):
+    """``--recost``: one line per table row (sensitivity rows aside) in costs.jsonl, every seed of the row
+    reads it as its cost (the cost timed in the run kept beside), a rerun times nothing again, MuJoCo is
+    timed as it is and says why, and the speed table names how each step ran. Eager here ("none"): the
+    ahead-of-time path is tests/test_train.py's and test_compiled_cost_*."""
+    import shutil
+
+    out = tmp_path / "copy"
+    shutil.copytree(clean_run, out)
+    res = runner.invoke(app, ["study", str(TINY), "--out", str(out), "--recost", "none"])
+    assert res.exit_code == 0, res.output
+    recs = [json.loads(x) for x in (out / "costs.jsonl").read_text().splitlines()]
+    lines = read_results(out)
+    rows = {(ln["scene"], ln["label"]) for ln in lines if ln["kind"] != "sensitivity"}
+    assert sorted((r["scene"], r["label"]) for r in recs) == sorted(rows)
+    assert all(r["single"]["ms_per_frame"] > 0 and r["compiled"] == "none" for r in recs)
+    assert all("not torch code" in r["note"] for r in recs if r["label"].startswith("mujoco"))
+    for ln in lines:
+        if ln["kind"] == "sensitivity":
+            assert "cost_in_run" not in ln
+        else:
+            rec = next(r for r in recs if (r["scene"], r["label"]) == (ln["scene"], ln["label"]))
+            assert ln["cost"]["single"] == rec["single"] and ln["cost_in_run"]["single"]["ms_per_frame"] > 0
+    again = runner.invoke(app, ["study", str(TINY), "--out", str(out), "--recost", "none", "--no-report"])
+    assert again.exit_code == 0 and f"0 of {len(rows)} rows timed now" in again.output, again.output
+    md = (out / "tables.md").read_text()
+    assert "`mdgs study --recost none`" in md and "| step |" in md
+    res = runner.invoke(app, ["study", str(TINY), "--out", str(out), "--recost", "jit"])
+    assert res.exit_code == 2 and "give aot" in res.output
+    res = runner.invoke(app, ["study", str(TINY), "--out", str(out), "--recost", "aot", "--cells", "0/2"])
+    assert res.exit_code == 2 and "leave out --cells" in res.output
+    fresh = tmp_path / "fresh"
+    res = runner.invoke(app, ["study", str(TINY), "--out", str(fresh), "--recost", "none"])
+    assert res.exit_code == 2 and "holds no study yet" in res.output and not fresh.exists()
+
+
 @pytest.mark.parametrize("name", sorted(p.stem for p in (ROOT / "studies").glob("*.toml")))
 def test_shipped_study_files_load(name):
     study = load_study(ROOT / "studies" / f"{name}.toml")

@@ -17,12 +17,16 @@ def study_cmd(
     report_only: Path = typer.Option(None, "--report", metavar="DIR",
                                      help="Only rebuild the tables and charts of DIR from its results files."),
     no_report: bool = typer.Option(False, "--no-report", help="Do not draw tables and charts after running."),
+    recost: str = typer.Option(None, "--recost", metavar="MODE",
+                               help="Instead of running cells: time every finished row's step again, compiled "
+                                    "(aot, inductor) or eager (none), one row after another, into OUT/costs.jsonl "
+                                    "(run it on an idle machine); the tables and chart then use these costs."),
 ) -> None:
     """Run a grid of (scene, model, seed) cells: Tables 1-4, speed-accuracy chart, stability test."""
     from mdgs.data.schema import DatasetError
     from mdgs.models import ModelError
     from mdgs.runs import RunError
-    from mdgs.study import StudyError, load_study, report, run_study
+    from mdgs.study import StudyError, load_study, recost_study, report, run_study
 
     if report_only is not None:
         if study_file is not None:
@@ -35,12 +39,45 @@ def study_cmd(
         return
     if study_file is None or out is None:
         fail("give a study file and --out DIR (or --report DIR to redraw the tables and charts)")
+    if recost is not None and recost not in ("aot", "inductor", "none"):
+        fail(f"--recost {recost!r}: give aot (ahead of time, AOTInductor), inductor (torch.compile) or none (eager)")
+    if recost is not None and cells != "0/1":
+        fail("--recost measures every row in one process (so all are timed alike); leave out --cells")
     share = parse_share(cells, "--cells")
     try:
         study = load_study(study_file)
     except StudyError as e:
         fail(str(e))
     progress, console = progress_bar()
+    if recost is not None:
+        try:
+            with progress as bar:
+                task = bar.add_task("rows", total=None)
+                before = {"done": 0}
+
+                def on_row(e: dict) -> None:
+                    if e["kind"] == "plan":
+                        before["done"] = e["cells"] - e["todo"]
+                        bar.update(task, total=e["cells"], completed=before["done"])
+                        console.print(f"study {study.name}: {e['cells']} rows, {e['todo']} to time ({recost})")
+                    elif e["kind"] == "cell":
+                        bar.update(task, description=e["label"], completed=before["done"] + e["index"])
+
+                res = recost_study(study, out, recost, progress=on_row)
+        except (StudyError, DatasetError, RunError, ModelError, ValueError) as e:
+            fail(str(e))
+        except KeyboardInterrupt:
+            typer.echo(f"interrupted; rerun the same command to time the rows left ({out}/costs.jsonl keeps the rest)",
+                       err=True)
+            raise typer.Exit(130) from None
+        typer.echo(f"{out}: {res['measured']} of {res['rows']} rows timed now")
+        if not no_report:
+            try:
+                files = report(out)
+            except StudyError as e:
+                fail(str(e))
+            typer.echo(f"{out}: " + ", ".join(files))
+        return
     try:
         with progress as bar:
             overall = bar.add_task("cells", total=None)

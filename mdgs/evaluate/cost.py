@@ -10,20 +10,26 @@ A model may define ``cost_step(state, ctrl)``: what one frame costs it when that
 ``step`` only by work done for the comparison with the data. The MuJoCo reference does: its
 cost is its integrator steps, not the mapping of its state to element nodes that the error
 metrics need (a learned model's state *is* its nodes, so its ``step`` is timed).
+
+:func:`compiled_cost` is the same measurement with the step compiled first
+(:func:`mdgs.models.compile_step`), which ``mdgs study --recost`` runs for every row of a study.
 """
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import statistics
 import time
+import warnings
 
 import numpy as np
 import torch
 
 from mdgs.data.split import SplitData
-from mdgs.models import Simulator
+from mdgs.models import ModelError, Simulator, compile_step
 
-__all__ = ["step_cost"]
+__all__ = ["step_cost", "compiled_cost"]
 
 
 @torch.no_grad()
@@ -55,3 +61,62 @@ def step_cost(model: Simulator, d: SplitData, batch: int = 1, frames: int = 20, 
     ms = 1e3 * statistics.median(times) / frames
     return {"batch": int(batch), "ms_per_frame": ms, "ms_per_trajectory_frame": ms / batch,
             "frames": int(frames), "repeats": int(repeats)}
+
+
+def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batches: tuple = (1, 0)) -> dict:
+    """:func:`step_cost` of ``model`` at one trajectory and at every trajectory of ``d`` (batch 0: all),
+    with its step compiled by ``mode`` ("none": the eager step; "inductor", "aot": as
+    :func:`mdgs.models.compile_step`).
+
+    A model that does not compile in ``mode`` is measured in the next mode that works (aot ->
+    inductor -> none), and the result says so: ``{"requested", "compiled", "note", "compile_seconds",
+    "single", "batched"}``, ``compiled`` the mode that ran, ``note`` why it is not ``requested`` ("" if
+    it is). A model that is not torch code (``compilable`` false: MuJoCo) runs as it is, ``compiled``
+    "none". Each batch shape is compiled (and its first step run) before its timed repeats, so
+    ``compile_seconds`` holds the compiling and no timing does. ``model`` keeps the compiled step.
+    """
+    modes = {"aot": ["aot", "inductor", "none"], "inductor": ["inductor", "none"], "none": ["none"]}
+    if mode not in modes:
+        raise ValueError(f"compile mode {mode!r} is not one of {', '.join(modes)}")
+    T = d.x.shape[0]
+    sizes = [b if b else T for b in batches]
+    note, used, t_compile = "", "none", 0.0
+    eager_step = model.step
+    for m in modes[mode] if model.compilable else ["none"]:
+        if m == "none":
+            model.step = eager_step
+            used = "none"
+            break
+        try:
+            t0 = time.perf_counter()
+            compile_step(model, m)
+            with _quiet_compiler():
+                for b in sizes:  # compile each batch shape (two steps: the first of a binding runs eagerly)
+                    step_cost(model, d, batch=b, frames=2, repeats=1)
+            t_compile += time.perf_counter() - t0
+            used = m
+            break
+        except (ModelError, RuntimeError, NotImplementedError, TypeError, ValueError) as e:  # inductor's many
+            # failure types; MDGS, GNS and constant twist compile in both modes (benchmarks/bench_models.py)
+            note += f"{m}: {type(e).__name__}: {str(e).splitlines()[0][:160] if str(e) else ''}; "
+            model.step = eager_step
+    if not model.compilable:
+        note = f"{model.name} is not torch code (nothing to compile)"
+    out = {"requested": mode, "compiled": used, "note": note.rstrip("; "), "compile_seconds": t_compile}
+    out["single"], out["batched"] = (step_cost(model, d, batch=b) for b in sizes)
+    return out
+
+
+@contextlib.contextmanager
+def _quiet_compiler():
+    """Silence torch's own deprecation warnings and inductor's notes while it compiles (one screenful per
+    compiled shape, none about the model: e.g. that SVD has no C shim and runs through a fallback)."""
+    log = logging.getLogger("torch._inductor")
+    level = log.level
+    log.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", category=FutureWarning)
+            yield
+    finally:
+        log.setLevel(level)

@@ -112,6 +112,9 @@ class Simulator(nn.Module):
     learned: ClassVar[bool] = True
     summary: ClassVar[str] = ""
     default_lr: ClassVar[float] = 1e-3
+    #: Whether the step is torch code that :func:`compile_step` can compile (false: MuJoCo, whose step
+    #: is its C engine).
+    compilable: ClassVar[bool] = True
     #: Registry name of a model that trains to the very same weights as this one (the two differ only
     #: at rollout, e.g. ``sgnn-snap`` -> ``sgnn``): a study trains that run once and evaluates both
     #: (:meth:`from_trained`). ``None``: this model trains its own run.

@@ -126,6 +126,7 @@ class MuJoCoReference(Simulator):
     name = "mujoco"
     Config = MuJoCoConfig
     learned = False
+    compilable = False
     summary = "reference: MuJoCo from the recorded initial state at dt_factor x the data's timestep"
 
     def bind(self, split: SplitData) -> None:

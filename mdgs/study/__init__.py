@@ -1,7 +1,8 @@
 """``mdgs study``: a grid of scenes x models x seeds run resumably into ``results.jsonl``, then tables and charts.
 
 :func:`~mdgs.study.config.load_study` reads a study file, :func:`~mdgs.study.runner.run_study`
-runs (a share of) its cells, :func:`report` rebuilds ``tables.md/.csv/.tex`` and the charts from
+runs (a share of) its cells, :func:`~mdgs.study.runner.recost_study` times every row's step again
+(compiled, one row after another), :func:`report` rebuilds ``tables.md/.csv/.tex`` and the charts from
 the results files alone.
 """
 
@@ -12,10 +13,10 @@ from pathlib import Path
 
 from mdgs.study.charts import draw_charts
 from mdgs.study.config import StudyConfig, StudyError, load_study
-from mdgs.study.runner import cells_of, read_results, run_study
+from mdgs.study.runner import cells_of, read_results, recost_study, run_study
 from mdgs.study.tables import render
 
-__all__ = ["StudyConfig", "StudyError", "load_study", "run_study", "cells_of", "read_results", "report"]
+__all__ = ["StudyConfig", "StudyError", "load_study", "run_study", "recost_study", "cells_of", "read_results", "report"]
 
 
 def report(out: str | os.PathLike, name: str | None = None) -> list[str]:

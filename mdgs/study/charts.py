@@ -74,6 +74,9 @@ def speed_accuracy(lines, path: Path) -> None:
     round-off) are drawn at the bottom edge as a downward triangle, so they do not squash the axis."""
     plt = _plt()
     scenes = _scenes(lines)
+    modes = sorted({ln["cost"]["requested"] for ln in lines if ln.get("cost", {}).get("recost")})
+    xlabel = ("cost: ms per simulated frame, 1 trajectory (log)" if not modes else
+              f"cost: ms per frame, 1 trajectory, step compiled ({'/'.join(modes)}; log)")
     rows, cols = _grid(len(scenes))
     styles = _styles(lines)
     learned = [lbl for lbl, st in styles.items() if st["ls"] == "-"]
@@ -124,7 +127,7 @@ def speed_accuracy(lines, path: Path) -> None:
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_title(scene, fontsize=12)
-        ax.set_xlabel("cost: ms per simulated frame, 1 trajectory (log)", fontsize=11)
+        ax.set_xlabel(xlabel, fontsize=11)
         ax.set_ylabel("position MSE at t = 110 (m$^2$, log)", fontsize=11)
     handles.setdefault("Pareto front (circled)", plt.Line2D([], [], marker="o", ms=10, mfc="none", mec="k", ls=""))
     handles.setdefault("hollow: failed on some trajectories; \u25bc: below the axis (value in brackets)",

@@ -39,7 +39,7 @@ import torch
 from mdgs.data.generate import GenerateConfig, generate
 from mdgs.data.io import output_problem
 from mdgs.data.split import SplitData, load_split
-from mdgs.evaluate.cost import step_cost
+from mdgs.evaluate.cost import compiled_cost, step_cost
 from mdgs.evaluate.metrics import REPORT_TIMES, frame_of
 from mdgs.evaluate.physics import energy_error, hinge_anchors, joint_separation, rigidity_violation
 from mdgs.evaluate.rollout import divergence_threshold, rollout, rollout_score
@@ -49,7 +49,7 @@ from mdgs.runs import LOCK_NAME, FolderBusy, atomic_json, folder_lock, load_run,
 from mdgs.study.config import SceneEntry, StudyConfig, StudyError
 from mdgs.train import TrainConfig, TrainingError, train
 
-__all__ = ["Cell", "cells_of", "run_study", "read_results", "RESULTS_VERSION"]
+__all__ = ["Cell", "cells_of", "run_study", "recost_study", "read_results", "RESULTS_VERSION", "COSTS_NAME"]
 
 #: Version of the results line layout.
 RESULTS_VERSION = 1
@@ -269,33 +269,9 @@ def _run_cell(study: StudyConfig, out: Path, cell: Cell, progress, t0: float, wa
     test = load_split(data / "test.h5")
     line = {"version": RESULTS_VERSION, "study": study.name, "cell": cell.key(study), **cell.spec(study),
             "scene": cell.scene.name, "status": "ok", "data_fingerprint": _fingerprint(data, "test")}
-    train_info = {}
-    cls = MODELS[cell.model]
-    if cls.learned:
-        trainee = _training_cell(study, cell)
-        run = out / "runs" / trainee.key(study)
-        b = study.budget
-        tcls = MODELS[trainee.model]
-        cfg = TrainConfig(data=str(data), out=str(run), model_name=trainee.model, epochs=b.epochs,
-                          batch_size=b.batch_size, seed=cell.seed, device=study.device, max_steps=b.max_steps,
-                          valid_max_pairs=b.valid_max_pairs, select=b.select, model=tcls.Config(**dict(cell.settings)))
-        t1 = time.perf_counter()
-        _train_or_wait(cfg, progress, wait)
-        model, state = load_run(run, dev)
-        if trainee is not cell:
-            model = cls.from_trained(model)
-        hist = state["history"]
-        train_info = {"epochs": len(hist), "steps": int(sum(h["steps"] for h in hist)),
-                      "train_seconds": float(sum(h["train_seconds"] for h in hist)),
-                      "wall_seconds_this_run": time.perf_counter() - t1,
-                      "valid_mse_last": hist[-1]["valid_mse"] if hist else None}
-        if b.select != "last":  # which epoch's weights this cell evaluates
-            train_info["select"], train_info["evaluated_epoch"] = b.select, state["evaluated_epoch"]
-        if trainee is not cell:
-            train_info["trained_as"] = {"model": trainee.model, "cell": trainee.key(study)}
+    model, train_info = _cell_model(study, out, cell, data, dev, progress, wait)
+    if train_info:
         line["one_step_mse"] = one_step_error(model, test, dev)
-    else:
-        model = MODELS[cell.model].from_data(test, MODELS[cell.model].Config(**dict(cell.settings))).to(dev)
     line["parameters"] = model.parameter_count()
     line["train"] = train_info
     anchors = hinge_anchors(test.mj_model())
@@ -315,6 +291,39 @@ def _run_cell(study: StudyConfig, out: Path, cell: Cell, progress, t0: float, wa
     line["versions"] = _versions()
     line["wall_seconds"] = time.perf_counter() - t0
     return line
+
+
+def _cell_model(study: StudyConfig, out: Path, cell: Cell, data: Path, dev, progress,
+                wait: bool = True) -> tuple[Simulator, dict]:
+    """The model a cell evaluates and what its training did (``{}`` for a model that does not learn):
+    a learned cell trains its run (or resumes it, or finds it finished; a twin such as ``sgnn-snap``
+    loads its trainee's weights), a reference is built from the test split."""
+    cls = MODELS[cell.model]
+    if not cls.learned:
+        test = load_split(data / "test.h5")
+        return MODELS[cell.model].from_data(test, MODELS[cell.model].Config(**dict(cell.settings))).to(dev), {}
+    trainee = _training_cell(study, cell)
+    run = out / "runs" / trainee.key(study)
+    b = study.budget
+    tcls = MODELS[trainee.model]
+    cfg = TrainConfig(data=str(data), out=str(run), model_name=trainee.model, epochs=b.epochs,
+                      batch_size=b.batch_size, seed=cell.seed, device=study.device, max_steps=b.max_steps,
+                      valid_max_pairs=b.valid_max_pairs, select=b.select, model=tcls.Config(**dict(cell.settings)))
+    t1 = time.perf_counter()
+    _train_or_wait(cfg, progress, wait)
+    model, state = load_run(run, dev)
+    if trainee is not cell:
+        model = cls.from_trained(model)
+    hist = state["history"]
+    train_info = {"epochs": len(hist), "steps": int(sum(h["steps"] for h in hist)),
+                  "train_seconds": float(sum(h["train_seconds"] for h in hist)),
+                  "wall_seconds_this_run": time.perf_counter() - t1,
+                  "valid_mse_last": hist[-1]["valid_mse"] if hist else None}
+    if b.select != "last":  # which epoch's weights this cell evaluates
+        train_info["select"], train_info["evaluated_epoch"] = b.select, state["evaluated_epoch"]
+    if trainee is not cell:
+        train_info["trained_as"] = {"model": trainee.model, "cell": trainee.key(study)}
+    return model, train_info
 
 
 def _training_cell(study: StudyConfig, cell: Cell) -> Cell:
@@ -377,6 +386,7 @@ def read_results(out: str | os.PathLike, usable: bool = False) -> list[dict]:
                 seen.add(key)
                 lines.append(rec)
     lines = _newest_revisions(lines)
+    _merge_costs(out, lines)
     if usable:
         lines = [ln for ln in lines if ln.get("status", "ok") in ("ok", "failed")]
     return lines
@@ -398,6 +408,38 @@ def _newest_revisions(lines: list[dict]) -> list[dict]:
 #: The keys of :meth:`Cell.spec` but ``revision``: what makes two results lines the same cell.
 _SPEC_KEYS = ("kind", "scene", "model", "label", "settings", "seed", "refine", "preset", "trajectories",
               "long_frames", "long_trajectories", "failure_factor", "budget")
+
+
+def _row(ln: dict) -> str:
+    """A results line's table row: its cell's identity but for ``seed`` (``revision`` included)."""
+    return json.dumps({k: v for k, v in ln.items() if k in _SPEC_KEYS + ("revision",) and k != "seed"},
+                      sort_keys=True)
+
+
+#: The file of ``mdgs study --recost`` in a study folder: one line per row measured.
+COSTS_NAME = "costs.jsonl"
+
+
+def _merge_costs(out: Path, lines: list[dict]) -> None:
+    """Give every line of a row that ``--recost`` measured (``OUT/costs.jsonl``, its last line for the
+    row) that measurement as ``cost``; the cost its cell measured while the study ran moves to
+    ``cost_in_run``."""
+    path = out / COSTS_NAME
+    if not path.exists():
+        return
+    costs = {}
+    for raw in path.read_text(encoding="utf-8").splitlines():
+        try:
+            rec = json.loads(raw)
+        except json.JSONDecodeError:
+            continue  # a torn last line
+        costs[rec["row"]] = rec
+    for ln in lines:
+        rec = costs.get(_row(ln)) if ln.get("status", "ok") == "ok" else None
+        if rec is not None:
+            ln["cost_in_run"] = ln["cost"]
+            ln["cost"] = {"single": rec["single"], "batched": rec["batched"], "compiled": rec["compiled"],
+                          "requested": rec["requested"], "recost": True}
 
 
 def _repair(path: Path) -> None:
@@ -461,6 +503,57 @@ def run_study(study: StudyConfig, out: str | os.PathLike, share: tuple[int, int]
                      name=LOCK_NAME if n == 1 else f"{LOCK_NAME}-{i}-of-{n}"):
         _claim_folder(study, out)
         return _run_share(study, out, share, progress)
+
+
+def recost_study(study: StudyConfig, out: str | os.PathLike, mode: str = "aot",
+                 progress: Callable[[dict], None] | None = None) -> dict:
+    """Measure the cost of every row of the study's finished cells again, in one pass, with the step
+    compiled by ``mode`` (:func:`mdgs.evaluate.cost.compiled_cost`; "none": eager), into
+    ``OUT/costs.jsonl``; the tables and charts then use these figures (:func:`read_results`).
+
+    One cell per row is measured (its lowest seed: the seeds of a row share the architecture and
+    the scene, so their step does the same work), on the test split the row was evaluated on, one
+    row after another in one process: run it on an otherwise idle machine, and every cost of the
+    chart is measured alike, which costs taken while the study's cells trained beside each other
+    are not. Resumable: a row already measured in ``mode`` is skipped (a row measured in another
+    mode is measured again, and the newer line counts). Returns ``{"rows", "measured"}``."""
+    progress = progress or (lambda e: None)
+    out = Path(out)
+    _check_folder(study, out)
+    if not (out / "study.json").exists():
+        raise StudyError(f"{out} holds no study yet; run `mdgs study {study.path} --out {out}` first")
+    cells = {c.key(study): c for c in cells_of(study)}
+    rows: dict = {}
+    for ln in sorted(read_results(out, usable=True), key=lambda ln: ln["seed"]):
+        if ln.get("status", "ok") == "ok" and ln["kind"] != "sensitivity" and ln["cell"] in cells:
+            rows.setdefault(_row(ln), ln)
+    path = out / COSTS_NAME
+    with folder_lock(out, f"mdgs study {study.name} --recost", name=f"{LOCK_NAME}-recost"):
+        _repair(path)
+        done = set()
+        if path.exists():
+            for raw in path.read_text(encoding="utf-8").splitlines():
+                try:
+                    rec = json.loads(raw)
+                except json.JSONDecodeError:
+                    continue
+                if rec.get("requested") == mode:
+                    done.add(rec["row"])
+        todo = [(r, ln) for r, ln in rows.items() if r not in done]
+        progress({"kind": "plan", "cells": len(rows), "todo": len(todo)})
+        dev = resolve_device(study.device)
+        for k, (r, ln) in enumerate(todo):
+            cell = cells[ln["cell"]]
+            progress({"kind": "cell", "index": k, "total": len(todo),
+                      "label": f"{cell.scene.name} {cell.label} (seed {cell.seed})"})
+            data = _dataset(study, out, cell.scene, cell.refine)
+            model, _ = _cell_model(study, out, cell, data, dev, progress)
+            cost = compiled_cost(model, load_split(data / "test.h5"), mode)
+            _append(path, {"row": r, "cell": ln["cell"], "scene": ln["scene"], "label": ln["label"],
+                           "kind": ln["kind"], **cost, "versions": _versions(),
+                           "measured": time.strftime("%Y-%m-%dT%H:%M:%S")})
+            del model  # its compiled packages (temporary folders) go with it
+    return {"rows": len(rows), "measured": len(todo)}
 
 
 def _finished(out: Path) -> set[str]:

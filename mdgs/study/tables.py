@@ -411,23 +411,39 @@ def _group(lines, pred):
 def _speed_table(lines) -> Table | None:
     rows = []
     key = _row_order(lines)
+    recost = any(ln.get("cost", {}).get("recost") for ln in lines)
     for lns in sorted(_group(lines, lambda ln: ln["kind"] in ("learned", "reference") and ln.get("status", "ok") == "ok"),
                       key=lambda g: key(g[0])):  # per scene: references, then learned
         ln = lns[0]
         single = np.median([x["cost"]["single"]["ms_per_frame"] for x in lns])
         batched = np.median([x["cost"]["batched"]["ms_per_trajectory_frame"] for x in lns])
         tr = [x["train"].get("train_seconds") for x in lns if x["train"]]
-        rows.append([ln["scene"], ln["label"], f"{ln['parameters']}", f"{single:.3g}",
-                     f"{batched:.3g} (batch {ln['cost']['batched']['batch']})",
-                     "-" if not tr else f"{np.median(tr):.0f}"])
+        row = [ln["scene"], ln["label"], f"{ln['parameters']}", f"{single:.3g}",
+               f"{batched:.3g} (batch {ln['cost']['batched']['batch']})"]
+        if recost:
+            c = ln["cost"]
+            row.append({"none": "eager", None: "eager, while the study ran"}.get(c.get("compiled"), c.get("compiled")))
+            row.append(f"{np.median([x.get('cost_in_run', x['cost'])['single']['ms_per_frame'] for x in lns]):.3g}")
+        rows.append(row + ["-" if not tr else f"{np.median(tr):.0f}"])
     if not rows:
         return None
-    header = ["scene", "model", "parameters", "ms per frame, 1 trajectory", "ms per trajectory-frame, batched",
-              "training s (median over seeds)"]
-    return Table("Speed", header, rows, "Medians over seeds of the median of 3 timed repeats "
-                 "(mdgs.evaluate.cost.step_cost) on the machine that ran each cell, while other work may "
-                 "have shared it (benchmarks/bench_models.py times models side by side on an idle machine).",
-                 rows)
+    header = ["scene", "model", "parameters", "ms per frame, 1 trajectory", "ms per trajectory-frame, batched"]
+    if recost:
+        header += ["step", "ms per frame, 1 trajectory, eager while the study ran"]
+        modes = sorted({ln["cost"]["requested"] for ln in lines if ln.get("cost", {}).get("recost")})
+        note = (f"Measured again after the study by `mdgs study --recost {'/'.join(modes)}` "
+                "(mdgs.evaluate.cost.compiled_cost), one row after another in one process, one seed per row "
+                "(a row's seeds share its architecture and scene); \"step\": how each step ran: compiled ahead "
+                "of time (aot), by torch.compile (inductor), or eager where the model does not compile "
+                "(MuJoCo is C code, nothing to compile). Median of 3 timed repeats each. The last column: "
+                "the eager step timed by each cell while the study ran, medians over seeds, while other work "
+                "may have shared the machine.")
+    else:
+        note = ("Medians over seeds of the median of 3 timed repeats (mdgs.evaluate.cost.step_cost) on the machine "
+                "that ran each cell, while other work may have shared it (benchmarks/bench_models.py times models "
+                "side by side on an idle machine; `mdgs study --recost aot` measures every row again, compiled, "
+                "one after another).")
+    return Table("Speed", header + ["training s (median over seeds)"], rows, note, rows)
 
 
 def _resolution_table(lines) -> Table | None:
