@@ -194,8 +194,8 @@ def write_checkpoint(path: str | os.PathLike, state: dict) -> None:
     atomic_write(path, lambda p: torch.save({**state, "format": CHECKPOINT_FORMAT}, p))
 
 
-def load_model(state: dict, dev):
-    """Rebuild the model of a checkpoint dict on ``dev`` in eval mode -> a Simulator."""
+def model_config(state: dict):
+    """The model class and config of a checkpoint dict -> ``(cls, cls.Config)``."""
     from mdgs.models import MODELS
 
     name = state["model_name"]
@@ -208,7 +208,13 @@ def load_model(state: dict, dev):
         mc["contact"] = bool(state["has_contact"])
     known = {f.name for f in fields(cls.Config)}
     mc = {**getattr(cls.Config, "ABSENT", {}), **mc}  # settings newer than the checkpoint: their old meaning
-    cfg = cls.Config(**{k: v for k, v in mc.items() if k in known})
+    return cls, cls.Config(**{k: v for k, v in mc.items() if k in known})
+
+
+def load_model(state: dict, dev):
+    """Rebuild the model of a checkpoint dict on ``dev`` in eval mode -> a Simulator."""
+    cls, cfg = model_config(state)
+    name = state["model_name"]
     model = cls(cfg).to(dev)
     try:
         model.load_state_dict(state["model"])

@@ -532,6 +532,42 @@ def test_select_keeps_and_evaluates_the_epoch_its_rule_picks(data, tmp_path, sel
     assert differs == (want != hist[-1]["epoch"])  # the last epoch's weights only when it was the best
 
 
+def test_rollout_or_start_adds_the_starting_weights_as_a_candidate_and_changes_nothing_else(data, tmp_path):
+    """select=rollout-or-start: the epochs train and score exactly as under select=rollout (the start is
+    scored before the first step, from no random stream training uses); when the start scores lowest
+    (a scorer that says so), the run keeps the weights it started from (epoch -1: MDGS's zero-initialised
+    state network, its last layer all zeros) and load_run evaluates them."""
+    from mdgs.evaluate.rollout import rollout_score
+    from mdgs.runs import load_run
+
+    runs = {}
+    for select in ("rollout", "rollout-or-start"):
+        runs[select] = tmp_path / select
+        train(_cfg(data, runs[select], epochs=2, select=select, model=ModelConfig()), score=rollout_score)
+    a, b = (json.loads((runs[k] / "metrics.json").read_text()) for k in ("rollout", "rollout-or-start"))
+    assert [h["valid_rollout"] for h in a] == [h["valid_rollout"] for h in b]
+    assert [h["train_mse"] for h in a] == [h["train_mse"] for h in b]
+    state = torch.load(runs["rollout-or-start"] / "checkpoint.pt", weights_only=False)
+    assert state["start_rollout"] > 0 and state["selected_epoch"] == (
+        -1 if state["start_rollout"] <= min(h["valid_rollout"] for h in b) else min(b, key=lambda h: h["valid_rollout"])["epoch"])
+
+    calls = []
+
+    def start_wins(model, va, dev):  # the start scores 1, every epoch 2
+        calls.append(1)
+        return 1.0 if len(calls) == 1 else 2.0
+
+    out = tmp_path / "start"
+    train(_cfg(data, out, epochs=2, select="rollout-or-start", model=ModelConfig()), score=start_wins)
+    model, state = load_run(out, "cpu")
+    assert state["selected_epoch"] == state["evaluated_epoch"] == -1 and len(calls) == 3
+    last = state["history"][-1]
+    assert last["epoch"] == 1 and state["start_rollout"] == 1.0
+    assert float(model.state.lins[-1].weight.abs().max()) == 0.0  # the zero-initialised state network
+    trained = torch.load(out / "checkpoint.pt", weights_only=False)["model"]
+    assert float(trained[f"state.lins.{len(model.state.lins) - 1}.weight"].abs().max()) > 0  # training moved it
+
+
 def test_select_cannot_change_on_resume_and_old_runs_resume_as_last(data, run, tmp_path):
     """A run cannot switch its selection rule midway (the earlier epochs were never scored by the new
     rule); a checkpoint written before the rule existed resumes as select=last."""

@@ -37,7 +37,8 @@ def train_cmd(
     valid_max_pairs: int = typer.Option(0, "--valid-max-pairs", help="Cap on validation pairs (0: all)."),
     select: str = typer.Option("last", "--select",
                                help="Which epoch's weights to keep for evaluation: last, valid (lowest one-step "
-                                    "validation error) or rollout (lowest validation rollout error, failures capped)."),
+                                    "validation error), rollout (lowest validation rollout error, failures capped) "
+                                    "or rollout-or-start (the same, the weights training started from included)."),
     device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),
 ) -> None:
     """Train a model on a generated dataset (MDGS: Adam, plateau scheduler, training noise; Appendix B.2)."""
@@ -80,10 +81,19 @@ def train_cmd(
         if select != "last":
             import json
 
+            from mdgs.runs import read_checkpoint
+            from mdgs.train.loop import SELECT_KEY
+
             hist = json.loads((out / "metrics.json").read_text())
-            key = {"valid": "valid_mse", "rollout": "valid_rollout"}[select]
+            key = SELECT_KEY[select]
             best = min(hist, key=lambda h: h[key])
-            typer.echo(f"{out}: evaluates the weights of epoch {best['epoch'] + 1} (--select {select}: {key} {best[key]:.4g})")
+            start = read_checkpoint(out / "checkpoint.pt", "cpu").get("selected_epoch") == -1
+            if start:
+                typer.echo(f"{out}: evaluates the weights training started from (--select {select}: they roll out "
+                           f"better on valid than every epoch, best {key} {best[key]:.4g})")
+            else:
+                typer.echo(f"{out}: evaluates the weights of epoch {best['epoch'] + 1} (--select {select}: "
+                           f"{key} {best[key]:.4g})")
     else:
         typer.echo(f"{out}: already holds {done.get('finished', '?')} finished epochs (--epochs {epochs}); "
                    "raise --epochs to continue it")

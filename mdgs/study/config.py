@@ -20,7 +20,7 @@ A study file has these tables (every key optional unless marked; defaults in the
     max_steps = 0                       # cap on steps per epoch (0: a full pass)
     batch_size = 32
     valid_max_pairs = 0
-    select = "last"                     # weights evaluated: last epoch, or best by "valid" / "rollout"
+    select = "last"                     # weights evaluated: last epoch, or best by "valid" / "rollout" / "rollout-or-start"
 
     [[scenes]]
     name = "cubli-triple"               # a built-in scene, or
@@ -54,6 +54,8 @@ import os
 import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+
+from mdgs.train.loop import SELECT
 
 __all__ = ["StudyError", "SceneEntry", "ModelEntry", "Budget", "StudyConfig", "load_study"]
 
@@ -213,8 +215,8 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
                     batch_size=_take(bt, "batch_size", int, where, 32),
                     valid_max_pairs=_take(bt, "valid_max_pairs", int, where, 0),
                     select=_take(bt, "select", str, where, "last"))
-    if budget.select not in ("last", "valid", "rollout"):
-        raise StudyError(f"{where}: select = {budget.select!r} is not one of last, valid, rollout")
+    if budget.select not in SELECT:
+        raise StudyError(f"{where}: select = {budget.select!r} is not one of {', '.join(SELECT)}")
     if budget.epochs < 1 or budget.batch_size < 1 or budget.max_steps < 0 or budget.valid_max_pairs < 0:
         raise StudyError(f"{where}: epochs and batch_size must be >= 1, max_steps and valid_max_pairs >= 0")
 

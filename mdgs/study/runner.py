@@ -294,10 +294,11 @@ def _run_cell(study: StudyConfig, out: Path, cell: Cell, progress, t0: float, wa
 
 
 def _cell_model(study: StudyConfig, out: Path, cell: Cell, data: Path, dev, progress,
-                wait: bool = True) -> tuple[Simulator, dict]:
+                wait: bool = True, trained: bool = False) -> tuple[Simulator, dict]:
     """The model a cell evaluates and what its training did (``{}`` for a model that does not learn):
     a learned cell trains its run (or resumes it, or finds it finished; a twin such as ``sgnn-snap``
-    loads its trainee's weights), a reference is built from the test split."""
+    loads its trainee's weights), a reference is built from the test split. ``trained``: the cell has
+    finished, load its run's weights as they are (the code may have moved on since it trained)."""
     cls = MODELS[cell.model]
     if not cls.learned:
         test = load_split(data / "test.h5")
@@ -310,7 +311,8 @@ def _cell_model(study: StudyConfig, out: Path, cell: Cell, data: Path, dev, prog
                       batch_size=b.batch_size, seed=cell.seed, device=study.device, max_steps=b.max_steps,
                       valid_max_pairs=b.valid_max_pairs, select=b.select, model=tcls.Config(**dict(cell.settings)))
     t1 = time.perf_counter()
-    _train_or_wait(cfg, progress, wait)
+    if not trained:
+        _train_or_wait(cfg, progress, wait)
     model, state = load_run(run, dev)
     if trainee is not cell:
         model = cls.from_trained(model)
@@ -547,7 +549,7 @@ def recost_study(study: StudyConfig, out: str | os.PathLike, mode: str = "aot",
             progress({"kind": "cell", "index": k, "total": len(todo),
                       "label": f"{cell.scene.name} {cell.label} (seed {cell.seed})"})
             data = _dataset(study, out, cell.scene, cell.refine)
-            model, _ = _cell_model(study, out, cell, data, dev, progress)
+            model, _ = _cell_model(study, out, cell, data, dev, progress, trained=True)
             cost = compiled_cost(model, load_split(data / "test.h5"), mode)
             _append(path, {"row": r, "cell": ln["cell"], "scene": ln["scene"], "label": ln["label"],
                            "kind": ln["kind"], **cost, "versions": _versions(),

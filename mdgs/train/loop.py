@@ -60,7 +60,9 @@ class TrainingError(RunError):
 
 
 #: Checkpoint selection rules of :attr:`TrainConfig.select`.
-SELECT = ("last", "valid", "rollout")
+SELECT = ("last", "valid", "rollout", "rollout-or-start")
+#: The score each rule minimises (a key of an epoch's record in ``history``).
+SELECT_KEY = {"valid": "valid_mse", "rollout": "valid_rollout", "rollout-or-start": "valid_rollout"}
 
 
 @dataclass
@@ -96,8 +98,13 @@ class TrainConfig:
         which epoch's weights the run keeps for evaluation: ``"last"`` (default; every study so
         far), ``"valid"`` (lowest one-step validation error) or ``"rollout"`` (lowest validation
         rollout score, :func:`mdgs.evaluate.rollout.rollout_score` passed to :func:`train`: position
-        MSE over every frame of every validation trajectory, capped at the failure threshold). The same rule for every
-        model of a comparison (``../shared/baselines.md``: best checkpoint on the validation split).
+        MSE over every frame of every validation trajectory, capped at the failure threshold), or
+        ``"rollout-or-start"`` (the same, with the weights training started from as one more
+        candidate, scored before the first step: the run keeps them, epoch ``-1``, when no epoch
+        rolls out better; for a model that starts as a physical prior, e.g. MDGS's zero-initialised
+        state network, "training did not help" is then a possible outcome, not a worse model). The
+        same rule for every model of a comparison (``../shared/baselines.md``: best checkpoint on the
+        validation split).
     model
         the model's config (``MODELS[model_name].Config``); ``None``: its defaults.
         Settings the model takes from data are filled by its ``resolve_config``.
@@ -149,12 +156,26 @@ def _with_absent(old: dict, config_cls) -> dict:
     return {**old, "model": {**{k: v for k, v in absent.items() if k not in old["model"]}, **old["model"]}}
 
 
-def _selected(history: list[dict], select: str) -> int:
-    """The epoch whose weights the run keeps under rule ``select`` (the first of equal scores)."""
+def _selected(history: list[dict], select: str, start_score: float | None = None) -> int:
+    """The epoch whose weights the run keeps under rule ``select`` (the first of equal scores; ``-1``:
+    the weights training started from, scored ``start_score``, under ``"rollout-or-start"``)."""
     if select == "last":
         return history[-1]["epoch"]
-    key = {"valid": "valid_mse", "rollout": "valid_rollout"}[select]
-    return min(history, key=lambda r: r[key])["epoch"]
+    key = SELECT_KEY[select]
+    best = min(history, key=lambda r: r[key])
+    if select == "rollout-or-start" and start_score is not None and start_score <= best[key]:
+        return -1
+    return best["epoch"]
+
+
+def starting_model(cls, mcfg, tr: SplitData, seed: int):
+    """The model a run of ``cls`` with config ``mcfg`` and ``seed`` starts training from (its weights
+    initialised under ``torch.manual_seed(seed)``, bound and fitted to the training split ``tr``)."""
+    torch.manual_seed(seed)
+    model = cls(mcfg)
+    model.bind(tr)
+    model.fit(tr)
+    return model
 
 
 def _load_splits(cfg: TrainConfig, splits: dict | None) -> tuple[SplitData, SplitData]:
@@ -185,8 +206,8 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, spli
                          f"evaluate it directly with `mdgs evaluate --model {cfg.model_name} --data DIR`")
     if cfg.lr is None:
         cfg = replace(cfg, lr=cls.default_lr)
-    if cfg.select == "rollout" and score is None:
-        raise RunError("select='rollout' needs the rollout score: call train(cfg, score=mdgs.evaluate.rollout.rollout_score)")
+    if cfg.select.startswith("rollout") and score is None:
+        raise RunError(f"select={cfg.select!r} needs the rollout score: call train(cfg, score=mdgs.evaluate.rollout.rollout_score)")
     problem = output_problem(cfg.out, "--out")
     if problem:  # before reading any data: a run that cannot be written fails at once
         raise RunError(problem)
@@ -235,11 +256,7 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
         if state["epoch"] + 1 >= cfg.epochs:
             progress({"kind": "done", "epoch": state["epoch"], "epochs": cfg.epochs})
             return {}
-    torch.manual_seed(cfg.seed)
-    model = cls(mcfg)
-    model.bind(tr)
-    model.fit(tr)
-    model = model.to(dev)
+    model = starting_model(cls, mcfg, tr, cfg.seed).to(dev)
     step_model = dist_.wrap(_Losses(model), dev)
     opt, sched, when = model.optimizer(cfg.lr)
     history, steps_log, start = [], [], 0
@@ -250,6 +267,10 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
         sched.load_state_dict(state["sched"])
         history, steps_log, start = state["history"], state["steps"], state["epoch"] + 1
         best_weights = state.get("selected_model")
+    start_score = state.get("start_rollout") if state is not None else None
+    if state is None and cfg.select == "rollout-or-start" and dist_.is_main:  # the start is a candidate
+        start_score = score(model, va, dev)
+        best_weights = {k: v.detach().clone() for k, v in model.state_dict().items()}
     resolved["processes"] = dist_.world
     if dist_.is_main:
         out.mkdir(parents=True, exist_ok=True)
@@ -303,11 +324,11 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
         rec = {"epoch": epoch, **{f"train_{k}": v / n_steps for k, v in tot.items()},
                "valid_mse": val, "lr": opt.param_groups[0]["lr"], "steps": n_steps,
                "train_seconds": train_s}
-        if cfg.select == "rollout" and dist_.is_main:
+        if cfg.select.startswith("rollout") and dist_.is_main:
             rec["valid_rollout"] = score(model, va, dev)
         rec["seconds"] = time.perf_counter() - t0
         history.append(rec)
-        best = _selected(history, cfg.select) if dist_.is_main else None  # the rollout score is rank 0's
+        best = _selected(history, cfg.select, start_score) if dist_.is_main else None  # the rollout score is rank 0's
         if dist_.is_main and cfg.select != "last" and best == epoch:
             best_weights = {k: v.detach().clone() for k, v in model.state_dict().items()}
         if dist_.is_main:  # only rank 0 writes; the others wait so a resume sees a finished epoch
@@ -315,7 +336,8 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
                 "model_name": cls.name, "model": model.state_dict(), "opt": opt.state_dict(),
                 "sched": sched.state_dict(), "epoch": epoch, "config": resolved, "train_fingerprint": fp,
                 "data_identity": tr.identity(), "has_contact": tr.has_contact, "history": history,
-                "steps": steps_log, "selected_epoch": best, "selected_model": best_weights})
+                "steps": steps_log, "selected_epoch": best, "selected_model": best_weights,
+                "start_rollout": start_score})
             atomic_json(history, out / "metrics.json")
             atomic_json(steps_log, out / "steps.json")
             progress({"kind": "epoch", **rec})
