@@ -11,7 +11,8 @@ One run, this machine, medians over repeats; printed per model:
   (:func:`mdgs.evaluate.cost.step_cost`, the same code the study's speed-accuracy chart uses);
 - for the learned models, the achieved FLOP rate of the largest batched step (FLOPs counted by
   ``torch.utils.flop_counter.FlopCounterMode``) as a fraction of a dense float32 matmul measured
-  in the same run;
+  in the same run, and the floor those FLOPs set: the ms per trajectory-frame of a step that ran
+  all its FLOPs at that dense rate (a batched target below it cannot be met on this thread);
 - MuJoCo (the ``mujoco`` reference) at the data's timestep and at one step per frame, on the
   same scale.
 
@@ -132,7 +133,7 @@ def main() -> None:
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, frame {tr.frame_dt * 1e3:.0f} ms, torch threads "
           f"{args.threads}; dense matmul [8192x200]@[200x200] {rate / 1e9:.1f} GFLOP/s")
     head = f"{'model':22s}{'params':>10s}{'train ms':>10s}" + "".join(f"{'ms/tf b' + str(b):>12s}" for b in args.batches)
-    print(head + f"{'% matmul':>10s}")
+    print(head + f"{'% matmul':>10s}{'floor ms/tf':>13s}")
     rows = []
     for label, model in registry_models(names, tr, tuple(args.widths)):
         if isinstance(model, str):
@@ -155,7 +156,7 @@ def main() -> None:
             model.train()
             train_ms = f"{1e3 * median_time(train_step, args.repeats, 1):.1f}"
         costs = [step_cost(model, te, batch=b, frames=args.frames, repeats=args.repeats) for b in args.batches]
-        frac = "-"
+        frac = floor = "-"
         if cls.learned:
             big = args.batches[-1]
             model.bind(te)
@@ -165,16 +166,18 @@ def main() -> None:
                 model.step(st, ctrl)
             flops = fc.get_total_flops()
             frac = f"{100 * flops / (costs[-1]['ms_per_frame'] * 1e-3) / rate:.0f}"
+            floor = f"{1e3 * flops / big / rate:.4f}"
         line = (f"{label:22s}{model.parameter_count():>10d}{train_ms:>10s}"
-                + "".join(f"{c['ms_per_trajectory_frame']:>12.3f}" for c in costs) + f"{frac:>10s}")
+                + "".join(f"{c['ms_per_trajectory_frame']:>12.3f}" for c in costs) + f"{frac:>10s}{floor:>13s}")
         print(line, flush=True)
         rows.append(line)
-        if args.compile is not None and label != "mujoco" and not label.startswith("mujoco "):
+        if args.compile is not None and model.compilable:
             for mode in args.compile or ["inductor"]:
                 print(_compiled_line(label, model, te, args, mode), flush=True)
                 del model.step  # back to the class's eager step for the next mode
     print("ms/tf bN: milliseconds per trajectory-frame of a rollout step at batch N (batch 1: one trajectory); "
-          "% matmul: FLOP rate of the largest batch against the dense matmul above"
+          "% matmul: FLOP rate of the largest batch against the dense matmul above; floor ms/tf: the step's "
+          "FLOPs per trajectory at that dense matmul rate, the least a step could cost on this thread"
           + ("; compiled / aot: the same model with torch.compile / AOTInductor (compile: seconds spent compiling "
              "every batch shape, outside the timings; max |dx|: against the eager rollout)"
              if args.compile is not None else ""))
