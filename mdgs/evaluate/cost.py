@@ -63,9 +63,9 @@ def step_cost(model: Simulator, d: SplitData, batch: int = 1, frames: int = 20, 
             "frames": int(frames), "repeats": int(repeats)}
 
 
-def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batches: tuple = (1, 0)) -> dict:
-    """:func:`step_cost` of ``model`` at one trajectory and at every trajectory of ``d`` (batch 0: all),
-    with its step compiled by ``mode`` ("none": the eager step; "inductor", "aot": as
+def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batched: int = 0) -> dict:
+    """:func:`step_cost` of ``model`` at one trajectory and at a batch of ``batched`` trajectories of ``d``
+    (0: all of them), with its step compiled by ``mode`` ("none": the eager step; "inductor", "aot": as
     :func:`mdgs.models.compile_step`).
 
     A model that does not compile in ``mode`` is measured in the next mode that works (aot ->
@@ -78,8 +78,7 @@ def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batches: tu
     modes = {"aot": ["aot", "inductor", "none"], "inductor": ["inductor", "none"], "none": ["none"]}
     if mode not in modes:
         raise ValueError(f"compile mode {mode!r} is not one of {', '.join(modes)}")
-    T = d.x.shape[0]
-    sizes = [b if b else T for b in batches]
+    sizes = [1, batched or d.x.shape[0]]
     note, used, t_compile = "", "none", 0.0
     eager_step = model.step
     for m in modes[mode] if model.compilable else ["none"]:
