@@ -165,3 +165,24 @@ def test_compiled_cost_falls_back_mode_by_mode_and_says_why(test_split, monkeypa
     np.testing.assert_allclose(rollout(ref, test_split, "cpu").x, eager.x, rtol=0, atol=1e-5)
     with pytest.raises(ValueError, match="'jit' is not one of aot, inductor, none"):
         cost.compiled_cost(ref, test_split, "jit")
+
+
+def test_a_compiled_step_that_compiles_again_is_timed_eagerly_and_says_why(test_split, monkeypatch):
+    """A step whose graph follows the state (SGNN's contact edges) would compile anew at every timed step:
+    the moment a compiled step adds a graph after its warm-up, ``compiled_cost`` stops and times the
+    eager step, naming the reason. Here a new graph is simulated by raising dynamo's own graph count."""
+    from torch._dynamo.utils import counters
+
+    import mdgs.evaluate.cost as cost
+
+    real = cost._refuse_recompiles
+
+    def then_one_more_graph(model):
+        real(model)
+        counters["stats"]["unique_graphs"] += 1
+
+    monkeypatch.setattr(cost, "_refuse_recompiles", then_one_more_graph)
+    ref = MODELS["constant-twist"].from_data(test_split)
+    c = cost.compiled_cost(ref, test_split, "inductor")
+    assert c["compiled"] == "none" and "inductor: ModelError: the compiled step compiles again" in c["note"]
+    assert ref.step.__func__ is type(ref).step and c["single"]["ms_per_frame"] > 0

@@ -73,18 +73,20 @@ def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batched: in
     "single", "batched"}``, ``compiled`` the mode that ran, ``note`` why it is not ``requested`` ("" if
     it is). A model that is not torch code (``compilable`` false: MuJoCo) runs as it is, ``compiled``
     "none". Each batch shape is compiled (and its first step run) before its timed repeats, so
-    ``compile_seconds`` holds the compiling and no timing does. ``model`` keeps the compiled step.
+    ``compile_seconds`` holds the compiling and no timing does; a step that compiles again after that
+    (its shapes follow the state) is timed eagerly instead. ``model`` keeps the step timed.
     """
     modes = {"aot": ["aot", "inductor", "none"], "inductor": ["inductor", "none"], "none": ["none"]}
     if mode not in modes:
         raise ValueError(f"compile mode {mode!r} is not one of {', '.join(modes)}")
     sizes = [1, batched or d.x.shape[0]]
-    note, used, t_compile = "", "none", 0.0
+    note, t_compile = "", 0.0
     eager_step = model.step
     for m in modes[mode] if model.compilable else ["none"]:
         if m == "none":
             model.step = eager_step
-            used = "none"
+            out = {"compiled": "none", "single": step_cost(model, d, batch=sizes[0]),
+                   "batched": step_cost(model, d, batch=sizes[1])}
             break
         try:
             t0 = time.perf_counter()
@@ -93,7 +95,10 @@ def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batched: in
                 for b in sizes:  # compile each batch shape (two steps: the first of a binding runs eagerly)
                     step_cost(model, d, batch=b, frames=2, repeats=1)
             t_compile += time.perf_counter() - t0
-            used = m
+            if m == "inductor":
+                _refuse_recompiles(model)
+            out = {"compiled": m, "single": step_cost(model, d, batch=sizes[0]),
+                   "batched": step_cost(model, d, batch=sizes[1])}
             break
         except (ModelError, RuntimeError, NotImplementedError, TypeError, ValueError) as e:  # inductor's many
             # failure types; MDGS, GNS and constant twist compile in both modes (benchmarks/bench_models.py)
@@ -101,9 +106,26 @@ def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batched: in
             model.step = eager_step
     if not model.compilable:
         note = f"{model.name} is not torch code (nothing to compile)"
-    out = {"requested": mode, "compiled": used, "note": note.rstrip("; "), "compile_seconds": t_compile}
-    out["single"], out["batched"] = (step_cost(model, d, batch=b) for b in sizes)
-    return out
+    return {"requested": mode, **out, "note": note.rstrip("; "), "compile_seconds": t_compile}
+
+
+def _refuse_recompiles(model: Simulator) -> None:
+    """Make ``model``'s compiled step raise :class:`ModelError` the moment it compiles a new graph: a step
+    whose shapes follow the state (SGNN's varying number of contact edges) compiles anew at every
+    step under ``dynamic=False``, a minute each, and has no steady state to time."""
+    from torch._dynamo.utils import counters
+
+    graphs = counters["stats"]["unique_graphs"]
+    inner = model.step
+
+    def step(state, ctrl):
+        out = inner(state, ctrl)
+        if counters["stats"]["unique_graphs"] > graphs:
+            raise ModelError("the compiled step compiles again at later steps (its shapes follow the state, "
+                             "e.g. a varying number of contact edges)")
+        return out
+
+    model.step = step
 
 
 @contextlib.contextmanager
