@@ -187,6 +187,21 @@ def test_report_redraws_from_results_alone(clean_run, tmp_path):
     assert (copy / "speed_accuracy.png").stat().st_size > 1000
 
 
+def test_a_folder_holding_only_data_hosts_a_study_that_reuses_those_datasets(clean_run, tmp_path):
+    """``--out`` holding only ``data`` (here a symlink to another run of the same study's datasets) is
+    accepted, its datasets are used as they are (no file rewritten), and the accuracy tables are that
+    run's; anything else in the folder is still refused (test_output_folder_of_another_study_is_refused)."""
+    out = tmp_path / "reuse"
+    out.mkdir()
+    (out / "data").symlink_to(clean_run / "data")
+    before = {p: p.stat().st_mtime_ns for p in (clean_run / "data").rglob("*.h5")}
+    p = _study(out, "--no-report")
+    log = p.communicate(timeout=900)[0].decode()
+    assert p.returncode == 0, log
+    assert before and {p: p.stat().st_mtime_ns for p in (clean_run / "data").rglob("*.h5")} == before
+    assert _accuracy_tables(read_results(out)) == _accuracy_tables(read_results(clean_run))
+
+
 def test_killed_study_resumes_with_each_cell_once_and_the_same_tables(clean_run, tmp_path):
     out = tmp_path / "killed"
     p = _study(out)

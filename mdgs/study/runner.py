@@ -482,8 +482,10 @@ def _check_folder(study: StudyConfig, out: Path) -> None:
             raise StudyError(f"{out} holds results of study {theirs.get('name')!r}, not {study.name!r}; "
                              "choose another --out")
         return
-    if out.exists() and any(not p.name.startswith(LOCK_NAME) for p in out.iterdir()):
-        raise StudyError(f"{out} is not empty and holds no study; choose an empty or new folder for --out")
+    # a folder holding only data/ (e.g. a symlink to another study's datasets, to reuse them) can host one
+    if out.exists() and any(not p.name.startswith(LOCK_NAME) and p.name != "data" for p in out.iterdir()):
+        raise StudyError(f"{out} is not empty and holds no study; choose an empty or new folder for --out "
+                         "(one holding only a data/ folder of datasets to reuse is fine)")
 
 
 def _claim_folder(study: StudyConfig, out: Path) -> None:
