@@ -224,8 +224,7 @@ def test_killed_study_resumes_with_each_cell_once_and_the_same_tables(clean_run,
     assert _accuracy_tables(read_results(out)) == _accuracy_tables(read_results(clean_run))
 
 
-def test_recost_times_each_row_once_resumes_and_the_speed_table_says_how_each_step_ran(clean_run, tmp_path,
-                                                                                         monkeypatch):
+def test_recost_times_each_row_once_resumes_and_the_speed_table_says_how_each_step_ran(clean_run, tmp_path):
     """``--recost``: one line per table row (sensitivity rows aside) in costs.jsonl, every seed of the row
     reads it as its cost (the cost timed in the run kept beside), a rerun times nothing again, MuJoCo is
     timed as it is and says why, the speed table names how each step ran, and no run is trained or
@@ -233,16 +232,12 @@ def test_recost_times_each_row_once_resumes_and_the_speed_table_says_how_each_st
     Eager here ("none"): the ahead-of-time path is tests/test_train.py's and test_compiled_cost_*."""
     import shutil
 
-    from mdgs.study import runner as study_runner
-
-    def no_training(*a, **k):
-        raise AssertionError("--recost must load finished runs, not train them")
-
-    monkeypatch.setattr(study_runner, "_train_or_wait", no_training)
     out = tmp_path / "copy"
     shutil.copytree(clean_run, out)
+    runs = {p: p.read_bytes() for p in (out / "runs").rglob("checkpoint.pt")}
     res = runner.invoke(app, ["study", str(TINY), "--out", str(out), "--recost", "none"])
     assert res.exit_code == 0, res.output
+    assert runs and {p: p.read_bytes() for p in (out / "runs").rglob("checkpoint.pt")} == runs  # none trained
     recs = [json.loads(x) for x in (out / "costs.jsonl").read_text().splitlines()]
     lines = read_results(out)
     rows = {(ln["scene"], ln["label"]) for ln in lines if ln["kind"] != "sensitivity"}

@@ -62,6 +62,8 @@ def study_cmd(
                         console.print(f"study {study.name}: {e['cells']} rows, {e['todo']} to time ({recost})")
                     elif e["kind"] == "cell":
                         bar.update(task, description=e["label"], completed=before["done"] + e["index"])
+                    elif e["kind"] == "row failed":
+                        console.print(f"  could not time {e['reason']} (rerun to retry)")
 
                 res = recost_study(study, out, recost, progress=on_row)
         except (StudyError, DatasetError, RunError, ModelError, ValueError) as e:
@@ -70,7 +72,8 @@ def study_cmd(
             typer.echo(f"interrupted; rerun the same command to time the rows left ({out}/costs.jsonl keeps the rest)",
                        err=True)
             raise typer.Exit(130) from None
-        typer.echo(f"{out}: {res['measured']} of {res['rows']} rows timed now")
+        typer.echo(f"{out}: {res['measured']} of {res['rows']} rows timed now"
+                   + (f", {len(res['failed'])} could not be (rerun to retry)" if res["failed"] else ""))
         if not no_report:
             try:
                 files = report(out)

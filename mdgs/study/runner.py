@@ -24,11 +24,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+import multiprocessing
 import os
 import platform
 import time
 import warnings
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, replace
 from importlib import metadata
 from pathlib import Path
@@ -520,7 +522,9 @@ def recost_study(study: StudyConfig, out: str | os.PathLike, mode: str = "aot",
     row after another in one process: run it on an otherwise idle machine, and every cost of the
     chart is measured alike, which costs taken while the study's cells trained beside each other
     are not. Resumable: a row already measured in ``mode`` is skipped (a row measured in another
-    mode is measured again, and the newer line counts). Returns ``{"rows", "measured"}``."""
+    mode is measured again, and the newer line counts). Each row is timed in a process of its own; a
+    row that cannot be timed is skipped (a rerun retries it) and named in the result. Returns
+    ``{"rows", "measured", "failed"}``."""
     progress = progress or (lambda e: None)
     out = Path(out)
     _check_folder(study, out)
@@ -545,19 +549,38 @@ def recost_study(study: StudyConfig, out: str | os.PathLike, mode: str = "aot",
                     done.add(rec["row"])
         todo = [(r, ln) for r, ln in rows.items() if r not in done]
         progress({"kind": "plan", "cells": len(rows), "todo": len(todo)})
-        dev = resolve_device(study.device)
+        failed = []
         for k, (r, ln) in enumerate(todo):
             cell = cells[ln["cell"]]
-            progress({"kind": "cell", "index": k, "total": len(todo),
-                      "label": f"{cell.scene.name} {cell.label} (seed {cell.seed})"})
-            data = _dataset(study, out, cell.scene, cell.refine)
-            model, _ = _cell_model(study, out, cell, data, dev, progress, trained=True)
-            cost = compiled_cost(model, load_split(data / "test.h5"), mode)
+            label = f"{cell.scene.name} {cell.label} (seed {cell.seed})"
+            progress({"kind": "cell", "index": k, "total": len(todo), "label": label})
+            # each row in a fresh process: a compiler that fails half-way (an energy model's autograd
+            # step under torch.compile) can leave torch's tracing state broken for every later export
+            # in that process; and no row's timing inherits another's caches
+            try:
+                with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+                    cost = pool.submit(_time_row, study.path, str(out), ln["cell"], mode,
+                                       torch.get_num_threads()).result()
+            except Exception as e:  # noqa: BLE001 - one row that cannot be timed must not stop the others
+                failed.append(f"{label}: {type(e).__name__}: {str(e)[:200]}")
+                progress({"kind": "row failed", "label": label, "reason": failed[-1]})
+                continue
             _append(path, {"row": r, "cell": ln["cell"], "scene": ln["scene"], "label": ln["label"],
                            "kind": ln["kind"], **cost, "versions": _versions(),
                            "measured": time.strftime("%Y-%m-%dT%H:%M:%S")})
-            del model  # its compiled packages (temporary folders) go with it
-    return {"rows": len(rows), "measured": len(todo)}
+    return {"rows": len(rows), "measured": len(todo) - len(failed), "failed": failed}
+
+
+def _time_row(study_file: str, out: str, key: str, mode: str, threads: int) -> dict:
+    """:func:`~mdgs.evaluate.cost.compiled_cost` of the finished cell ``key`` (run in a process of its own)."""
+    from mdgs.study.config import load_study
+
+    torch.set_num_threads(threads)
+    study = load_study(study_file)
+    cell = {c.key(study): c for c in cells_of(study)}[key]
+    data = _dataset(study, Path(out), cell.scene, cell.refine)
+    model, _ = _cell_model(study, Path(out), cell, data, resolve_device(study.device), lambda e: None, trained=True)
+    return compiled_cost(model, load_split(data / "test.h5"), mode)
 
 
 def _finished(out: Path) -> set[str]:
