@@ -76,7 +76,7 @@ def speed_accuracy(lines, path: Path) -> None:
     scenes = _scenes(lines)
     modes = sorted({ln["cost"]["requested"] for ln in lines if ln.get("cost", {}).get("recost")})
     xlabel = ("cost: ms per simulated frame, 1 trajectory (log)" if not modes else
-              f"cost: ms per frame, 1 trajectory, step compiled ({'/'.join(modes)}; log)")
+              f"cost: ms per frame, 1 trajectory, step compiled where it compiles ({'/'.join(modes)}; log)")
     rows, cols = _grid(len(scenes))
     styles = _styles(lines)
     learned = [lbl for lbl, st in styles.items() if st["ls"] == "-"]
