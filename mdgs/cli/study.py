@@ -26,7 +26,7 @@ def study_cmd(
     from mdgs.data.schema import DatasetError
     from mdgs.models import ModelError
     from mdgs.runs import RunError
-    from mdgs.study import StudyError, load_study, recost_study, report, run_study
+    from mdgs.study import StudyError, load_study, report
 
     if report_only is not None:
         if study_file is not None:
@@ -42,80 +42,81 @@ def study_cmd(
     if recost is not None and recost not in ("aot", "inductor", "none"):
         fail(f"--recost {recost!r}: give aot (ahead of time, AOTInductor), inductor (torch.compile) or none (eager)")
     if recost is not None and cells != "0/1":
-        fail("--recost measures every row in one process (so all are timed alike); leave out --cells")
+        fail("--recost times every row one after another (so all are timed alike); leave out --cells")
     share = parse_share(cells, "--cells")
     try:
         study = load_study(study_file)
     except StudyError as e:
         fail(str(e))
     progress, console = progress_bar()
-    if recost is not None:
-        try:
-            with progress as bar:
-                task = bar.add_task("rows", total=None)
-                before = {"done": 0}
-
-                def on_row(e: dict) -> None:
-                    if e["kind"] == "plan":
-                        before["done"] = e["cells"] - e["todo"]
-                        bar.update(task, total=e["cells"], completed=before["done"])
-                        console.print(f"study {study.name}: {e['cells']} rows, {e['todo']} to time ({recost})")
-                    elif e["kind"] == "cell":
-                        bar.update(task, description=e["label"], completed=before["done"] + e["index"])
-                    elif e["kind"] == "row failed":
-                        console.print(f"  could not time {e['reason']} (rerun to retry)")
-
-                res = recost_study(study, out, recost, progress=on_row)
-        except (StudyError, DatasetError, RunError, ModelError, ValueError) as e:
-            fail(str(e))
-        except KeyboardInterrupt:
-            typer.echo(f"interrupted; rerun the same command to time the rows left ({out}/costs.jsonl keeps the rest)",
-                       err=True)
-            raise typer.Exit(130) from None
-        typer.echo(f"{out}: {res['measured']} of {res['rows']} rows timed now"
-                   + (f", {len(res['failed'])} could not be (rerun to retry)" if res["failed"] else ""))
-        if not no_report:
-            try:
-                files = report(out)
-            except StudyError as e:
-                fail(str(e))
-            typer.echo(f"{out}: " + ", ".join(files))
-        return
     try:
         with progress as bar:
-            overall = bar.add_task("cells", total=None)
-            inner = bar.add_task("", total=None, visible=False)
-
-            plan = {"done": 0}
-
-            def on(e: dict) -> None:
-                if e["kind"] == "plan":
-                    plan["done"] = e["cells"] - e["todo"]
-                    bar.update(overall, total=e["cells"], completed=plan["done"])
-                    console.print(f"study {study.name}: {e['cells']} cells in this share, {e['todo']} to run")
-                elif e["kind"] == "cell":  # index: cells of this run finished so far
-                    bar.update(overall, completed=plan["done"] + e["index"])
-                    bar.update(inner, description=e["label"], total=None, completed=0, visible=True)
-                elif e["kind"] == "defer":
-                    console.print(f"  {e['label']}: another share is training its run; back to it later")
-                elif e["kind"] == "train" and "steps" in e and "step" in e:
-                    bar.update(inner, description=f"  epoch {e['epoch'] + 1}", total=e["steps"], completed=e["step"])
-                elif e["kind"] == "evaluate":
-                    bar.update(inner, description=f"  evaluating on {e['set']}", total=None)
-                elif e["kind"] == "wait":
-                    bar.update(inner, description=f"  waiting for another share training {e['run']}", total=None)
-
-            res = run_study(study, out, share, progress=on)
-            bar.update(overall, completed=res["done"] + res["ran"])
+            if recost is not None:
+                summary = _recost(study, out, recost, bar, console)
+            else:
+                summary = _run(study, out, share, bar, console)
     except (StudyError, DatasetError, RunError, ModelError, ValueError) as e:
         fail(str(e))
     except KeyboardInterrupt:
-        typer.echo(f"interrupted; rerun the same command to resume {out} (finished cells are kept)", err=True)
+        kept = f"{out}/costs.jsonl keeps the rows timed" if recost is not None else "finished cells are kept"
+        typer.echo(f"interrupted; rerun the same command to resume {out} ({kept})", err=True)
         raise typer.Exit(130) from None
-    typer.echo(f"{out}: {res['done'] + res['ran']}/{res['cells']} cells finished ({res['ran']} run now)")
+    typer.echo(summary)
     if not no_report:
         try:
             files = report(out)
         except StudyError as e:
             fail(str(e))
         typer.echo(f"{out}: " + ", ".join(files))
+
+
+def _run(study, out, share, bar, console) -> str:
+    """Run the share's cells under a progress bar; returns the summary line."""
+    from mdgs.study import run_study
+
+    overall = bar.add_task("cells", total=None)
+    inner = bar.add_task("", total=None, visible=False)
+    plan = {"done": 0}
+
+    def on(e: dict) -> None:
+        if e["kind"] == "plan":
+            plan["done"] = e["cells"] - e["todo"]
+            bar.update(overall, total=e["cells"], completed=plan["done"])
+            console.print(f"study {study.name}: {e['cells']} cells in this share, {e['todo']} to run")
+        elif e["kind"] == "cell":  # index: cells of this run finished so far
+            bar.update(overall, completed=plan["done"] + e["index"])
+            bar.update(inner, description=e["label"], total=None, completed=0, visible=True)
+        elif e["kind"] == "defer":
+            console.print(f"  {e['label']}: another share is training its run; back to it later")
+        elif e["kind"] == "train" and "steps" in e and "step" in e:
+            bar.update(inner, description=f"  epoch {e['epoch'] + 1}", total=e["steps"], completed=e["step"])
+        elif e["kind"] == "evaluate":
+            bar.update(inner, description=f"  evaluating on {e['set']}", total=None)
+        elif e["kind"] == "wait":
+            bar.update(inner, description=f"  waiting for another share training {e['run']}", total=None)
+
+    res = run_study(study, out, share, progress=on)
+    bar.update(overall, completed=res["done"] + res["ran"])
+    return f"{out}: {res['done'] + res['ran']}/{res['cells']} cells finished ({res['ran']} run now)"
+
+
+def _recost(study, out, mode, bar, console) -> str:
+    """Time every finished row again under a progress bar; returns the summary line."""
+    from mdgs.study import recost_study
+
+    task = bar.add_task("rows", total=None)
+    before = {"done": 0}
+
+    def on(e: dict) -> None:
+        if e["kind"] == "plan":
+            before["done"] = e["cells"] - e["todo"]
+            bar.update(task, total=e["cells"], completed=before["done"])
+            console.print(f"study {study.name}: {e['cells']} rows, {e['todo']} to time ({mode})")
+        elif e["kind"] == "cell":
+            bar.update(task, description=e["label"], completed=before["done"] + e["index"])
+        elif e["kind"] == "row failed":
+            console.print(f"  could not time {e['reason']} (rerun to retry)")
+
+    res = recost_study(study, out, mode, progress=on)
+    return (f"{out}: {res['measured']} of {res['rows']} rows timed now"
+            + (f", {len(res['failed'])} could not be (rerun to retry)" if res["failed"] else ""))
