@@ -519,7 +519,7 @@ def recost_study(study: StudyConfig, out: str | os.PathLike, mode: str = "aot",
 
     One cell per row is measured (its lowest seed: the seeds of a row share the architecture and
     the scene, so their step does the same work), on the test split the row was evaluated on, one
-    row after another in one process: run it on an otherwise idle machine, and every cost of the
+    row after another, each in a process of its own: run it on an otherwise idle machine, and every cost of the
     chart is measured alike, which costs taken while the study's cells trained beside each other
     are not. Resumable: a row already measured in ``mode`` is skipped (a row measured in another
     mode is measured again, and the newer line counts). Each row is timed in a process of its own; a

@@ -432,7 +432,7 @@ def _speed_table(lines) -> Table | None:
         header += ["step", "ms per frame, 1 trajectory, eager while the study ran"]
         modes = sorted({ln["cost"]["requested"] for ln in lines if ln.get("cost", {}).get("recost")})
         note = (f"Measured again after the study by `mdgs study --recost {'/'.join(modes)}` "
-                "(mdgs.evaluate.cost.compiled_cost), one row after another in one process, one seed per row "
+                "(mdgs.evaluate.cost.compiled_cost), one row after another, each in a process of its own, one seed per row "
                 "(a row's seeds share its architecture and scene); \"step\": how each step ran: compiled ahead "
                 "of time (aot), by torch.compile (inductor), or eager where the model does not compile "
                 "(MuJoCo is C code, nothing to compile). Median of 3 timed repeats each. The last column: "
