@@ -176,6 +176,21 @@ def test_tiny_study_writes_results_tables_and_charts(clean_run):
     assert "### Table 1" in md and "constant twist (reference)" in md and "sensitivity floor" in md
 
 
+def test_sensitivity_floor_is_measured_on_the_long_set_and_reaches_the_stability_table(clean_run):
+    """The chaos floor of the stability test: MuJoCo from perturbed initial velocities is rolled out
+    over the long test trajectories like every other row, and the Stability table lists it."""
+    lines = [ln for ln in read_results(clean_run) if ln["kind"] == "sensitivity"]
+    study = load_study(TINY)
+    assert len(lines) == len(study.scenes) * len(study.sensitivity_seeds)
+    for ln in lines:
+        long = ln["sets"]["long"]
+        assert long["frames"] == study.long_frames and len(long["time_to_failure"]) == study.long_trajectories
+        assert ln["revision"] == 1
+    stab = next(t for t in build_tables(read_results(clean_run)) if t.title == "Stability")
+    assert {(r[0], r[1]) for r in stab.rows if r[1] == "sensitivity floor"} == {
+        (sc.name, "sensitivity floor") for sc in study.scenes}
+
+
 def test_report_redraws_from_results_alone(clean_run, tmp_path):
     copy = tmp_path / "copy"
     copy.mkdir()
@@ -445,6 +460,23 @@ def test_a_model_revision_makes_its_cells_stale_and_no_others(monkeypatch):
     # the variants inherit MDGS's revision (same code); the references and peers keep their keys
     assert "mdgs" in changed and changed <= {"mdgs", "mdgs-nc", "mdgs-sc"}
     assert any(c.model not in changed for c in before)
+
+
+def test_sensitivity_lines_of_revision_0_give_way_to_those_measured_on_the_long_set(tmp_path):
+    """Sensitivity cells of revision 0 were evaluated on the test set only; a folder holding them beside
+    revision-1 lines (test and long sets) tables only the new ones, and the cells' keys changed, so a
+    rerun of an old study measures them again instead of keeping the old lines."""
+    study = load_study(TINY)
+    sens = [c for c in cells_of(study) if c.kind == "sensitivity"]
+    assert sens and all(c.spec(study)["revision"] == 1 for c in sens)
+    assert all("revision" not in c.spec(study) for c in cells_of(study) if c.kind == "reference")
+    base = {"kind": "sensitivity", "scene": "s", "model": "mujoco", "label": "sensitivity floor", "seed": 0,
+            "refine": 1, "preset": "tiny", "status": "ok",
+            "settings": {"dt_factor": 1, "noise_seed": 0, "velocity_noise": 1e-3}}
+    old = [{**base, "cell": "a"}, {**base, "cell": "b", "seed": 1}]
+    new = {**base, "cell": "c", "revision": 1}
+    (tmp_path / "results.jsonl").write_text("".join(json.dumps(x) + "\n" for x in (*old, new)))
+    assert [ln["cell"] for ln in read_results(tmp_path)] == ["c"]
 
 
 def test_report_keeps_only_the_newest_revision_of_a_row(tmp_path):

@@ -7,8 +7,9 @@ Cells (each has a stable ``key``, a hash of everything that decides its result):
   test set;
 - ``reference``: a non-learned model (constant twist; MuJoCo at each ``dt_factor``) on the same sets;
 - ``sensitivity``: MuJoCo at the data's own timestep from initial velocities perturbed by the
-  study's ``sensitivity`` (one cell per perturbation seed): the floor below which no model's
-  error can be told from chaos;
+  study's ``sensitivity`` (one cell per perturbation seed), on the test set and the long test set:
+  the floor below which no model's error, and no model's stability, can be told from chaos
+  (revision 1 of these cells added the long set);
 - ``resolution``: the resolution model (MDGS) trained on data partitioned ``refine`` times finer.
 
 Layout of the output folder ``OUT``: ``study.json`` (which study it holds), ``data/<scene>[-r<k>]``
@@ -53,6 +54,9 @@ from mdgs.train import TrainConfig, TrainingError, train
 
 __all__ = ["Cell", "cells_of", "run_study", "recost_study", "read_results", "RESULTS_VERSION", "COSTS_NAME"]
 
+#: Revision of the sensitivity cells: 1 evaluates them on the long test set too (the stability table's
+#: chaos floor); lines of revision 0 (test set only) give way to these in :func:`read_results`.
+SENSITIVITY_REVISION = 1
 #: Version of the results line layout.
 RESULTS_VERSION = 1
 #: Frames of the curves stored per line are subsampled to at most this many points.
@@ -83,6 +87,8 @@ class Cell:
             d["budget"] = {k: v for k, v in asdict(study.budget).items() if k != "select" or v != "last"}
         if MODELS[self.model].revision:  # absent for revision 0: keys of cells run before revisions existed hold
             d["revision"] = MODELS[self.model].revision
+        if self.kind == "sensitivity":  # revision 1: also on the long set (earlier lines are superseded)
+            d["revision"] = SENSITIVITY_REVISION
         return d
 
     def key(self, study: StudyConfig) -> str:
@@ -284,10 +290,10 @@ def _run_cell(study: StudyConfig, out: Path, cell: Cell, progress, t0: float, wa
             vd = load_split(_dataset(study, out, cell.scene, variant=v) / "test.h5")
             progress({"kind": "evaluate", "set": v})
             sets[v] = _evaluate_set(model, vd, dev, study.failure_factor, anchors, False)
-        if study.long_frames:
-            ld = load_split(_dataset(study, out, cell.scene, cell.refine, long=True) / "test.h5")
-            progress({"kind": "evaluate", "set": "long"})
-            sets["long"] = _evaluate_set(model, ld, dev, study.failure_factor, anchors, True)
+    if cell.kind in ("learned", "reference", "sensitivity") and study.long_frames:
+        ld = load_split(_dataset(study, out, cell.scene, cell.refine, long=True) / "test.h5")
+        progress({"kind": "evaluate", "set": "long"})
+        sets["long"] = _evaluate_set(model, ld, dev, study.failure_factor, anchors, True)
     line["sets"] = sets
     line["cost"] = {"single": step_cost(model, test, batch=1), "batched": step_cost(model, test, batch=test.x.shape[0])}
     line["versions"] = _versions()

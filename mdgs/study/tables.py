@@ -343,7 +343,9 @@ def _stability_table(lines) -> Table | None:
               "max joint separation before failure (mm)"]
     note = ("Long test trajectories (10x the training horizon where the study says so). Failure: position MSE "
             "above failure_factor x the position variance of the moving nodes in the set; time to failure is "
-            "the first frame past it (the median over failed trajectories, all seeds).")
+            "the first frame past it (the median over failed trajectories, all seeds). The sensitivity floor "
+            "is MuJoCo at the data's own timestep from initial velocities perturbed by the study's "
+            "sensitivity: how many trajectories chaos alone takes past the threshold.")
     return Table("Stability", header, rows, note, rows)
 
 
