@@ -273,6 +273,12 @@ def test_recost_times_each_row_once_resumes_and_the_speed_table_says_how_each_st
     assert res.exit_code == 2 and "give aot" in res.output
     res = runner.invoke(app, ["study", str(TINY), "--out", str(out), "--recost", "aot", "--cells", "0/2"])
     assert res.exit_code == 2 and "leave out --cells" in res.output
+    # a results line whose run folder is not there (copied without it): named, with what to do, no traceback
+    shutil.rmtree(next((out / "runs").iterdir()))
+    (out / "costs.jsonl").unlink()
+    res = runner.invoke(app, ["study", str(TINY), "--out", str(out), "--recost", "none", "--no-report"])
+    assert res.exit_code == 0 and "its weights are not in" in res.output and "Traceback" not in res.output
+    assert "1 could not be" in res.output, res.output
     fresh = tmp_path / "fresh"
     res = runner.invoke(app, ["study", str(TINY), "--out", str(fresh), "--recost", "none"])
     assert res.exit_code == 2 and "holds no study yet" in res.output and not fresh.exists()

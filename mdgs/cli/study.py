@@ -115,8 +115,8 @@ def _recost(study, out, mode, bar, console) -> str:
         elif e["kind"] == "cell":
             bar.update(task, description=e["label"], completed=before["done"] + e["index"])
         elif e["kind"] == "row failed":
-            console.print(f"  could not time {e['reason']} (rerun to retry)")
+            console.print(f"  could not time {e['reason']}")
 
     res = recost_study(study, out, mode, progress=on)
     return (f"{out}: {res['measured']} of {res['rows']} rows timed now"
-            + (f", {len(res['failed'])} could not be (rerun to retry)" if res["failed"] else ""))
+            + (f", {len(res['failed'])} could not be (each said why above)" if res["failed"] else ""))

@@ -560,6 +560,14 @@ def recost_study(study: StudyConfig, out: str | os.PathLike, mode: str = "aot",
             cell = cells[ln["cell"]]
             label = f"{cell.scene.name} {cell.label} (seed {cell.seed})"
             progress({"kind": "cell", "index": k, "total": len(todo), "label": label})
+            if MODELS[cell.model].learned:
+                run = out / "runs" / _training_cell(study, cell).key(study)
+                if not (run / "checkpoint.pt").exists():  # a results line whose weights are not here
+                    failed.append(f"{label}: its weights are not in {run} (a results line copied without its "
+                                  f"run folder?); recost in the folder that trained it, or delete the line "
+                                  f"and rerun the study to train it again")
+                    progress({"kind": "row failed", "label": label, "reason": failed[-1]})
+                    continue
             # each row in a fresh process: a compiler that fails half-way (an energy model's autograd
             # step under torch.compile) can leave torch's tracing state broken for every later export
             # in that process; and no row's timing inherits another's caches
@@ -568,7 +576,7 @@ def recost_study(study: StudyConfig, out: str | os.PathLike, mode: str = "aot",
                     cost = pool.submit(_time_row, study.path, str(out), ln["cell"], mode,
                                        torch.get_num_threads()).result()
             except Exception as e:  # noqa: BLE001 - one row that cannot be timed must not stop the others
-                failed.append(f"{label}: {type(e).__name__}: {str(e)[:200]}")
+                failed.append(f"{label}: {type(e).__name__}: {str(e)[:200]} (rerun to retry)")
                 progress({"kind": "row failed", "label": label, "reason": failed[-1]})
                 continue
             _append(path, {"row": r, "cell": ln["cell"], "scene": ln["scene"], "label": ln["label"],
