@@ -268,3 +268,14 @@ def test_a_dataset_without_moving_bodies_is_a_dataset_error(tiny_dir, tmp_path):
         f["static/body_static"][...] = True
     with pytest.raises(DatasetError, match="no moving body"):
         check_dataset(p)
+
+
+def test_one_split_alone_gets_every_trajectory_asked_for():
+    """``--n-traj N`` with one split (a long test or validation set) gives that split N trajectories;
+    with several, the paper's proportions (held-out splits 100/2200 each, at least one)."""
+    from mdgs.data.presets import split_counts
+
+    for split in ("train", "valid", "test"):
+        assert split_counts(10, (split,)) == {split: 10}
+    assert split_counts(440, ("train", "valid", "test")) == {"train": 400, "valid": 20, "test": 20}
+    assert split_counts(3, ("train", "valid", "test")) == {"train": 1, "valid": 1, "test": 1}

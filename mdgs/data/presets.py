@@ -43,8 +43,8 @@ PRESETS: dict[str, Preset] = {
 
 def split_counts(n_traj: int, splits: tuple[str, ...]) -> dict[str, int]:
     """Counts for ``--n-traj N``: the paper's proportions (100/2200 each for valid and test)."""
-    if splits == ("test",):
-        return {"test": n_traj}
+    if len(splits) == 1:  # one split alone (a long test or validation set): all of them
+        return {splits[0]: n_traj}
     if n_traj < len(splits):
         raise ValueError(
             f"--n-traj {n_traj} is too small: each of {', '.join(splits)} needs at least one trajectory"
