@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
 from typer.testing import CliRunner
 
 from mdgs.cli import app
@@ -52,6 +53,8 @@ name = "mdgs"
     (GOOD.replace('[[models]]\nname = "mdgs"', '[[models]]\nname = "mujoco"'), "is a reference"),
     (GOOD.replace('preset = "tiny"', 'preset = "huge"'), "preset 'huge' is unknown"),
     (GOOD + '[budget]\nselect = "best"\n', "select = 'best' is not one of"),
+    (GOOD + '[budget]\nselect_frames = 1100\n', "needs select = \"rollout\""),
+    (GOOD + '[budget]\nselect = "rollout"\nselect_frames = 1\n', "at least 2 frames"),
     (GOOD + "[references]\nmotors = 1\n", "should be of type bool"),
 ])
 def test_malformed_study_file_is_one_sentence_and_exit_2(tmp_path, text, phrase):
@@ -123,6 +126,29 @@ def test_joint_twist_references_add_the_projected_rows_and_leave_the_ratio_base_
     assert _ratio_cell([run], [joints, twist_], "test", 40) == "0.5"
     with pytest.raises(StudyError, match="joints"):
         load_study(_write(tmp_path, GOOD + "[references]\njoints = 1\n"))
+
+
+def test_select_frames_trains_on_the_same_data_and_scores_longer_validation_trajectories(tmp_path):
+    """``[budget] select_frames = N``: the learned cells' keys change (another rule), the references' do
+    not, a study without it keeps the keys it had, and a cell trains with its rollout rule scored on the
+    validation trajectories run for N frames (a dataset of its own, ``long_trajectories`` of them)."""
+    from mdgs.data.split import load_split
+    from mdgs.study.runner import _cell_model, _dataset
+
+    budget = "\n[budget]\nepochs = 1\nmax_steps = 1\nbatch_size = 4\nvalid_max_pairs = 4\nselect = \"rollout\"\n"
+    text = GOOD.replace("seeds = [0]", "seeds = [0]\nlong_trajectories = 2\nsensitivity = 0") + budget
+    plain = load_study(_write(tmp_path, text))
+    longer = load_study(_write(tmp_path, text + "select_frames = 150\n"))
+    kp, kl = ({c.kind: c.key(s) for c in cells_of(s)} for s in (plain, longer))
+    assert kp["learned"] != kl["learned"] and kp["reference"] == kl["reference"]
+    assert all("select_frames" not in c.spec(plain).get("budget", {}) for c in cells_of(plain))
+    cell = next(c for c in cells_of(longer) if c.kind == "learned")
+    out = tmp_path / "out"
+    data = _dataset(longer, out, cell.scene)
+    _, info = _cell_model(longer, out, cell, data, torch.device("cpu"), lambda e: None)
+    assert info["select"] == "rollout" and info["select_frames"] == 150
+    lv = load_split(out / "data" / f"{cell.scene.name}-valid150" / "valid.h5")
+    assert lv.x.shape[:2] == (2, 150)
 
 
 def test_a_trajectory_count_makes_its_own_data_and_cells_and_leaves_the_presets_keys(tmp_path):

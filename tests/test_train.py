@@ -568,6 +568,49 @@ def test_rollout_or_start_adds_the_starting_weights_as_a_candidate_and_changes_n
     assert float(trained[f"state.lins.{len(model.state.lins) - 1}.weight"].abs().max()) > 0  # training moved it
 
 
+def test_select_data_scores_the_rollouts_on_its_own_validation_trajectories(data, tmp_path):
+    """--select-data: the rollout rule scores every epoch (and, under rollout-or-start, the start) on the
+    given folder's valid.h5 (here validation trajectories 3x as long, written by `mdgs generate --split
+    valid --frames`), and the one-step validation error stays on the data's own split; another scene's
+    folder or a rule that does not roll out is refused before anything is written."""
+    from mdgs.runs import RunError
+
+    long_valid = tmp_path / "long-valid"
+    res = runner.invoke(app, ["generate", "cubli-triple", "--out", str(long_valid), "--preset", "tiny",
+                              "--split", "valid", "--frames", "330", "--n-traj", "2"])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in long_valid.glob("*.h5")) == ["valid.h5"]
+    lv, va = load_split(long_valid / "valid.h5"), load_split(data / "valid.h5")
+    assert lv.x.shape[:2] == (2, 330) and va.x.shape[1] == 110
+    k = min(len(lv.x), len(va.x))
+    assert np.array_equal(lv.x[:k, 0], va.x[:k, 0]) and np.array_equal(lv.v[:k, 0], va.v[:k, 0])  # same starts
+
+    seen = []
+
+    def frames(model, split, dev):  # a scorer that records which split it was given
+        seen.append(split.x.shape[1])
+        return float(len(seen))
+
+    out = tmp_path / "run"
+    train(_cfg(data, out, epochs=2, select="rollout-or-start", select_data=str(long_valid)), score=frames)
+    assert seen == [330, 330, 330]  # the start, then each epoch
+    hist = json.loads((out / "metrics.json").read_text())
+    ref = tmp_path / "ref"
+    train(_cfg(data, ref, epochs=2, select="rollout-or-start"), score=frames)
+    assert seen[3:] == [110, 110, 110]
+    assert [h["valid_mse"] for h in hist] == [h["valid_mse"] for h in json.loads((ref / "metrics.json").read_text())]
+
+    with pytest.raises(RunError, match="needs --select rollout"):
+        _cfg(data, tmp_path / "x", select="valid", select_data=str(long_valid))
+    other = tmp_path / "other"
+    generate(GenerateConfig(scene="rotational-center", out=str(other), preset="tiny", splits=("valid",)))
+    from mdgs.data.schema import DatasetError
+
+    with pytest.raises(DatasetError, match="another scene"):
+        train(_cfg(data, tmp_path / "y", select="rollout", select_data=str(other)), score=frames)
+    assert not (tmp_path / "y").exists()
+
+
 def test_select_cannot_change_on_resume_and_old_runs_resume_as_last(data, run, tmp_path):
     """A run cannot switch its selection rule midway (the earlier epochs were never scored by the new
     rule); a checkpoint written before the rule existed resumes as select=last."""

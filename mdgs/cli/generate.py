@@ -54,6 +54,15 @@ def generate(
     refine: int = typer.Option(
         1, "--refine", help="Multiply the default partition resolution."
     ),
+    frames: int = typer.Option(
+        None, "--frames", show_default=False,
+        help="Frames per trajectory instead of the preset's (e.g. 1100 for a stability test set).",
+    ),
+    split: list[str] = typer.Option(
+        None, "--split", show_default=False,
+        help="Only this split (train, valid or test; repeatable); with --n-traj N alone it gets all N, e.g. "
+             "--split valid --frames 1100 --n-traj 10 for `mdgs train --select-data`.",
+    ),
     list_scenes: bool = typer.Option(False, "--list", help="List the scenes and exit."),
 ) -> None:
     """Generate trajectories of a scene as HDF5 datasets (train/valid/test)."""
@@ -105,6 +114,8 @@ def generate(
                 mjcf=str(mjcf) if mjcf else None,
                 substeps=substeps,
                 partition=PartitionParams(refine=refine),
+                n_frames=frames,
+                splits=tuple(dict.fromkeys(split)) if split else None,
             ))
         except DatasetError as e:
             fail(str(e))

@@ -39,6 +39,10 @@ def train_cmd(
                                help="Which epoch's weights to keep for evaluation: last, valid (lowest one-step "
                                     "validation error), rollout (lowest validation rollout error, failures capped) "
                                     "or rollout-or-start (the same, the weights training started from included)."),
+    select_data: Path = typer.Option(None, "--select-data", show_default=False,
+                                     help="With --select rollout*: score the rollouts on this folder's valid.h5 "
+                                          "instead (e.g. validation trajectories 10x as long, from `mdgs generate "
+                                          "--split valid --frames N`), to keep the epoch that stays stable."),
     device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),
 ) -> None:
     """Train a model on a generated dataset (MDGS: Adam, plateau scheduler, training noise; Appendix B.2)."""
@@ -61,7 +65,7 @@ def train_cmd(
         lr = cls.default_lr if lr is None else lr
         cfg = TrainConfig(data=str(data), out=str(out), model_name=model, epochs=epochs, batch_size=batch_size,
                           lr=lr, seed=seed, max_steps=max_steps, valid_max_pairs=valid_max_pairs, device=device,
-                          select=select, model=mcfg)
+                          select=select, select_data=str(select_data or ""), model=mcfg)
     except ValueError as e:
         fail(f"--model {model}: {e}")
     except (ModelError, RunError) as e:

@@ -21,6 +21,8 @@ A study file has these tables (every key optional unless marked; defaults in the
     batch_size = 32
     valid_max_pairs = 0
     select = "last"                     # weights evaluated: last epoch, or best by "valid" / "rollout" / "rollout-or-start"
+    select_frames = 0                   # rollout rules: score validation trajectories of this many frames
+                                        # (0: the data's own; e.g. long_frames, to keep the epoch that is stable)
 
     [[scenes]]
     name = "cubli-triple"               # a built-in scene, or
@@ -100,6 +102,7 @@ class Budget:
     batch_size: int = 32
     valid_max_pairs: int = 0
     select: str = "last"
+    select_frames: int = 0
 
 
 @dataclass(frozen=True)
@@ -210,13 +213,17 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
 
     bt = _take(doc, "budget", dict, f, {})
     where = f"{f} [budget]"
-    _unknown(bt, {"epochs", "max_steps", "batch_size", "valid_max_pairs", "select"}, where)
+    _unknown(bt, {"epochs", "max_steps", "batch_size", "valid_max_pairs", "select", "select_frames"}, where)
     budget = Budget(epochs=_take(bt, "epochs", int, where, 30), max_steps=_take(bt, "max_steps", int, where, 0),
                     batch_size=_take(bt, "batch_size", int, where, 32),
                     valid_max_pairs=_take(bt, "valid_max_pairs", int, where, 0),
-                    select=_take(bt, "select", str, where, "last"))
+                    select=_take(bt, "select", str, where, "last"),
+                    select_frames=_take(bt, "select_frames", int, where, 0))
     if budget.select not in SELECT:
         raise StudyError(f"{where}: select = {budget.select!r} is not one of {', '.join(SELECT)}")
+    if budget.select_frames and (budget.select_frames < 2 or not budget.select.startswith("rollout")):
+        raise StudyError(f"{where}: select_frames = {budget.select_frames} needs select = \"rollout\" or "
+                         "\"rollout-or-start\" and at least 2 frames (0: the data's own validation trajectories)")
     if budget.epochs < 1 or budget.batch_size < 1 or budget.max_steps < 0 or budget.valid_max_pairs < 0:
         raise StudyError(f"{where}: epochs and batch_size must be >= 1, max_steps and valid_max_pairs >= 0")
 

@@ -83,8 +83,9 @@ class Cell:
              "long_trajectories": study.long_trajectories, "failure_factor": study.failure_factor}
         if study.trajectories:  # absent at the preset's count: keys of cells run before the setting existed hold
             d["trajectories"] = study.trajectories
-        if MODELS[self.model].learned:  # select absent at "last": keys of cells run before it existed hold
-            d["budget"] = {k: v for k, v in asdict(study.budget).items() if k != "select" or v != "last"}
+        if MODELS[self.model].learned:  # select absent at "last", select_frames at 0: earlier keys hold
+            d["budget"] = {k: v for k, v in asdict(study.budget).items()
+                           if not (k == "select" and v == "last") and not (k == "select_frames" and not v)}
         if MODELS[self.model].revision:  # absent for revision 0: keys of cells run before revisions existed hold
             d["revision"] = MODELS[self.model].revision
         if self.kind == "sensitivity":  # revision 1: also on the long set (earlier lines are superseded)
@@ -134,13 +135,18 @@ DATA_WAIT_SECONDS = 2.0
 
 
 def _dataset(study: StudyConfig, out: Path, sc: SceneEntry, refine: int = 1, long: bool = False,
-             variant: str | None = None) -> Path:
-    """Generate (or find) a dataset of the study; returns its folder."""
+             variant: str | None = None, valid_frames: int = 0) -> Path:
+    """Generate (or find) a dataset of the study; returns its folder. ``long``: the long test set (the
+    test trajectories run for ``long_frames``); ``valid_frames``: the validation trajectories run for
+    that many frames (``[budget] select_frames``), ``long_trajectories`` of them."""
     name = variant or sc.name
-    folder = out / "data" / (name + (f"-r{refine}" if refine != 1 else "") + ("-long" if long else ""))
+    folder = out / "data" / (name + (f"-r{refine}" if refine != 1 else "") + ("-long" if long else "")
+                             + (f"-valid{valid_frames}" if valid_frames else ""))
     kw = {"n_traj": study.trajectories} if study.trajectories else {}
     if long:
         kw = {"n_frames": study.long_frames, "splits": ("test",), "n_traj": study.long_trajectories}
+    if valid_frames:
+        kw = {"n_frames": valid_frames, "splits": ("valid",), "n_traj": study.long_trajectories}
     cfg = GenerateConfig(scene="" if sc.mjcf else name, out=str(folder), preset=study.preset, mjcf=sc.mjcf,
                          substeps=sc.substeps, partition=PartitionParams(refine=refine), **kw)
     if variant:
@@ -315,9 +321,12 @@ def _cell_model(study: StudyConfig, out: Path, cell: Cell, data: Path, dev, prog
     run = out / "runs" / trainee.key(study)
     b = study.budget
     tcls = MODELS[trainee.model]
+    sel = (str(_dataset(study, out, cell.scene, cell.refine, valid_frames=b.select_frames))
+           if b.select_frames and not trained else "")
     cfg = TrainConfig(data=str(data), out=str(run), model_name=trainee.model, epochs=b.epochs,
                       batch_size=b.batch_size, seed=cell.seed, device=study.device, max_steps=b.max_steps,
-                      valid_max_pairs=b.valid_max_pairs, select=b.select, model=tcls.Config(**dict(cell.settings)))
+                      valid_max_pairs=b.valid_max_pairs, select=b.select, select_data=sel,
+                      model=tcls.Config(**dict(cell.settings)))
     t1 = time.perf_counter()
     if not trained:
         _train_or_wait(cfg, progress, wait)
@@ -331,6 +340,8 @@ def _cell_model(study: StudyConfig, out: Path, cell: Cell, data: Path, dev, prog
                   "valid_mse_last": hist[-1]["valid_mse"] if hist else None}
     if b.select != "last":  # which epoch's weights this cell evaluates
         train_info["select"], train_info["evaluated_epoch"] = b.select, state["evaluated_epoch"]
+        if b.select_frames:
+            train_info["select_frames"] = b.select_frames
     if trainee is not cell:
         train_info["trained_as"] = {"model": trainee.model, "cell": trainee.key(study)}
     return model, train_info

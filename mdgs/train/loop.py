@@ -105,6 +105,13 @@ class TrainConfig:
         state network, "training did not help" is then a possible outcome, not a worse model). The
         same rule for every model of a comparison (``../shared/baselines.md``: best checkpoint on the
         validation split).
+    select_data
+        a folder whose ``valid.h5`` (trajectories of the same scene) the rollout rules score in place of
+        ``data``'s validation split, e.g. the validation trajectories run ten times longer, so that the
+        kept epoch is the one that rolls out best over the horizon of a stability test (a study's
+        ``[budget] select_frames``; ``mdgs generate --split valid --frames N`` writes one). ``""``
+        (default): ``data``'s own. The one-step validation error (scheduler, ``select="valid"``) always
+        uses ``data``'s.
     model
         the model's config (``MODELS[model_name].Config``); ``None``: its defaults.
         Settings the model takes from data are filled by its ``resolve_config``.
@@ -122,6 +129,7 @@ class TrainConfig:
     valid_max_pairs: int = 0
     log_every: int = 10
     select: str = "last"
+    select_data: str = ""
     model: Any = None
 
     def __post_init__(self):
@@ -133,6 +141,9 @@ class TrainConfig:
             raise RunError(f"--lr {self.lr} must be a positive number")
         if self.select not in SELECT:
             raise RunError(f"--select {self.select!r} is not one of {', '.join(SELECT)}")
+        if self.select_data and not self.select.startswith("rollout"):
+            raise RunError(f"--select-data scores validation rollouts; it needs --select rollout or rollout-or-start, "
+                           f"not {self.select!r}")
         if not isinstance(self.seed, int) or not 0 <= self.seed < 2**63:
             raise RunError(f"--seed {self.seed} must be an integer from 0 to 2**63 - 1")
 
@@ -140,7 +151,7 @@ class TrainConfig:
 def _fingerprint(cfg: TrainConfig, model_cfg: dict) -> dict:
     """The settings that must agree for a resume (not epochs, step caps or device: a run may be extended)."""
     d = asdict(cfg) | {"model": model_cfg}
-    for k in ("data", "out", "epochs", "device", "log_every", "max_steps", "valid_max_pairs"):
+    for k in ("data", "out", "epochs", "device", "log_every", "max_steps", "valid_max_pairs", "select_data"):
         d.pop(k)
     return d
 
@@ -178,13 +189,20 @@ def starting_model(cls, mcfg, tr: SplitData, seed: int):
     return model
 
 
-def _load_splits(cfg: TrainConfig, splits: dict | None) -> tuple[SplitData, SplitData]:
+def _load_splits(cfg: TrainConfig, splits: dict | None) -> tuple[SplitData, SplitData, SplitData]:
+    """``(train, valid, scored)``: ``scored`` is the split the rollout rules score (``select_data``'s, else valid)."""
     if splits is None:
         splits = load_splits(cfg.data, ("train", "valid"))
     tr, va = splits["train"], splits["valid"]
     if tr.identity()["mjcf_sha256"] != va.identity()["mjcf_sha256"]:
         raise DatasetError(f"{va.path} is of another scene than {tr.path}; use the three files of one `mdgs generate` run")
-    return tr, va
+    scored = va
+    if cfg.select_data:
+        scored = load_splits(cfg.select_data, ("valid",))["valid"]
+        if scored.identity()["mjcf_sha256"] != tr.identity()["mjcf_sha256"]:
+            raise DatasetError(f"--select-data {cfg.select_data}: its valid.h5 is of another scene than {tr.path}; "
+                               "generate it from the same scene (`mdgs generate --split valid --frames N`)")
+    return tr, va, scored
 
 
 def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, splits: dict | None = None,
@@ -211,18 +229,20 @@ def train(cfg: TrainConfig, progress: Callable[[dict], None] | None = None, spli
     problem = output_problem(cfg.out, "--out")
     if problem:  # before reading any data: a run that cannot be written fails at once
         raise RunError(problem)
-    tr, va = _load_splits(cfg, splits)
+    tr, va, scored = _load_splits(cfg, splits)
     dist_, device = setup(cfg.device)
     try:
         dev = resolve_device(device)
         # rank 0 writes the run folder; it holds the folder's lock, so no other process writes it too
         with folder_lock(cfg.out, f"mdgs train ({cfg.model_name})") if dist_.is_main else nullcontext():
-            return _train(cfg, progress, tr, va, cls, dist_, dev, score)
+            return _train(cfg, progress, tr, va, cls, dist_, dev, score, scored)
     finally:
         teardown(dist_)
 
 
-def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_, dev, score=None) -> dict:
+def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_, dev, score=None,
+           scored: SplitData | None = None) -> dict:
+    scored = va if scored is None else scored
     out = Path(cfg.out)
     if not dist_.is_main:  # one progress report per job
         progress = lambda e: None  # noqa: E731
@@ -269,7 +289,7 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
         best_weights = state.get("selected_model")
     start_score = state.get("start_rollout") if state is not None else None
     if state is None and cfg.select == "rollout-or-start" and dist_.is_main:  # the start is a candidate
-        start_score = score(model, va, dev)
+        start_score = score(model, scored, dev)
         best_weights = {k: v.detach().clone() for k, v in model.state_dict().items()}
     resolved["processes"] = dist_.world
     if dist_.is_main:
@@ -325,7 +345,7 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
                "valid_mse": val, "lr": opt.param_groups[0]["lr"], "steps": n_steps,
                "train_seconds": train_s}
         if cfg.select.startswith("rollout") and dist_.is_main:
-            rec["valid_rollout"] = score(model, va, dev)
+            rec["valid_rollout"] = score(model, scored, dev)
         rec["seconds"] = time.perf_counter() - t0
         history.append(rec)
         best = _selected(history, cfg.select, start_score) if dist_.is_main else None  # the rollout score is rank 0's
