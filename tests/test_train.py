@@ -609,6 +609,9 @@ def test_select_data_scores_the_rollouts_on_its_own_validation_trajectories(data
     with pytest.raises(DatasetError, match="another scene"):
         train(_cfg(data, tmp_path / "y", select="rollout", select_data=str(other)), score=frames)
     assert not (tmp_path / "y").exists()
+    with pytest.raises(DatasetError, match="holds no valid.h5"):
+        train(_cfg(data, tmp_path / "z", select="rollout", select_data=str(tmp_path / "nowhere")), score=frames)
+    assert not (tmp_path / "z").exists()
 
 
 def test_select_cannot_change_on_resume_and_old_runs_resume_as_last(data, run, tmp_path):

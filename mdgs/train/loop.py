@@ -198,6 +198,9 @@ def _load_splits(cfg: TrainConfig, splits: dict | None) -> tuple[SplitData, Spli
         raise DatasetError(f"{va.path} is of another scene than {tr.path}; use the three files of one `mdgs generate` run")
     scored = va
     if cfg.select_data:
+        if not (Path(cfg.select_data) / "valid.h5").is_file():
+            raise DatasetError(f"--select-data {cfg.select_data} holds no valid.h5; write one with `mdgs generate "
+                               f"SCENE --split valid --frames N --n-traj K --out {cfg.select_data}`")
         scored = load_splits(cfg.select_data, ("valid",))["valid"]
         if scored.identity()["mjcf_sha256"] != tr.identity()["mjcf_sha256"]:
             raise DatasetError(f"--select-data {cfg.select_data}: its valid.h5 is of another scene than {tr.path}; "
