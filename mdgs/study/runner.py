@@ -137,8 +137,10 @@ DATA_WAIT_SECONDS = 2.0
 def _dataset(study: StudyConfig, out: Path, sc: SceneEntry, refine: int = 1, long: bool = False,
              variant: str | None = None, valid_frames: int = 0) -> Path:
     """Generate (or find) a dataset of the study; returns its folder. ``long``: the long test set (the
-    test trajectories run for ``long_frames``); ``valid_frames``: the validation trajectories run for
-    that many frames (``[budget] select_frames``), ``long_trajectories`` of them."""
+    test split's starting states run for ``long_frames``); ``valid_frames``: the validation split's
+    starting states run for that many frames (``[budget] select_frames``), ``long_trajectories`` of
+    each. A scene whose control schedule spans the trajectory (the Cubli's brake commands) draws its
+    controls over the longer horizon, so only the starting states are the short splits' own."""
     name = variant or sc.name
     folder = out / "data" / (name + (f"-r{refine}" if refine != 1 else "") + ("-long" if long else "")
                              + (f"-valid{valid_frames}" if valid_frames else ""))
