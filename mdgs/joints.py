@@ -47,7 +47,7 @@ import numpy as np
 import torch
 
 from mdgs.rigid import rotation_matrix, twist
-from mdgs.structure import fixes_rotation, kabsch
+from mdgs.structure import fixes_rotation, kabsch, segment_sum
 
 __all__ = ["Joint", "JointSet", "joints_of", "project_joints"]
 
@@ -227,11 +227,6 @@ def _point_velocity(vc: torch.Tensor, w: torch.Tensor, c: torch.Tensor, y: torch
     return vc + torch.linalg.cross(w.expand_as(r), r, dim=-1)
 
 
-def _segment_sum(a: torch.Tensor, of: torch.Tensor, n: int) -> torch.Tensor:
-    """Sum of ``a`` [B, M, ...] over the nodes of each joint of a group (``of`` [M]) -> [B, n, ...]."""
-    return a.new_zeros(a.shape[0], n, *a.shape[2:]).index_add(1, of, a)
-
-
 def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torch.Tensor, seg: torch.Tensor,
                    n_obj: int, mass: torch.Tensor, pose: tuple | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Project ``x, v`` [B, N, 3] onto the joints (module docstring) -> ``x', v'`` in ``x``'s dtype.
@@ -270,7 +265,7 @@ def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torc
         zero_frame = Rp @ g.q0  # child frame at zero joint angle [B, G, 3, 3]
         q_rel = xd[:, g.node] - A[:, k]  # predicted nodes about the anchor [B, M, 3]
         if g.kind == "hinge":  # best fit of the nodes by zero_frame Rot(a, theta) p_rel
-            N = zero_frame.transpose(-1, -2) @ _segment_sum(q_rel.unsqueeze(-1) * g.p_rel.unsqueeze(-2), k, G)
+            N = zero_frame.transpose(-1, -2) @ segment_sum(q_rel.unsqueeze(-1) * g.p_rel.unsqueeze(-2), k, G)
             skew = N - N.transpose(-1, -2)
             vee = torch.stack([skew[..., 2, 1], skew[..., 0, 2], skew[..., 1, 0]], -1)
             aNa = ((N @ g.axis.unsqueeze(-1)).squeeze(-1) * g.axis).sum(-1)  # a^T N a [B, G]
@@ -284,7 +279,7 @@ def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torc
             n = (Rn @ g.axis.unsqueeze(-1)).squeeze(-1)  # joint axis, world [B, G, 3]
         if g.kind == "slide":  # best fit of the nodes by Rn p_rel + A + s n
             resid = ((q_rel - (Rn[:, k] @ g.p_rel.unsqueeze(-1)).squeeze(-1)) * n[:, k]).sum(-1)  # [B, M]
-            s_fit = _segment_sum(resid, k, G) / g.count
+            s_fit = segment_sum(resid, k, G) / g.count
             tn = A + s_fit.unsqueeze(-1) * n - (Rn @ g.anchor.unsqueeze(-1)).squeeze(-1)
         elif g.kind == "weld":
             tn = (Rp @ g.body_pos.unsqueeze(-1)).squeeze(-1) + tp
@@ -305,6 +300,6 @@ def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torc
         xo[:, g.node], vo[:, g.node] = xn, vn
         if g.has_children:  # later groups hang from these children: their corrected pose and twist
             R[:, g.child], t[:, g.child], w[:, g.child] = Rn, tn, wn
-            c[:, g.child] = _segment_sum(g.mass[:, None] * xn, k, G) / g.total[:, None]
-            vc[:, g.child] = _segment_sum(g.mass[:, None] * vn, k, G) / g.total[:, None]
+            c[:, g.child] = segment_sum(g.mass[:, None] * xn, k, G) / g.total[:, None]
+            vc[:, g.child] = segment_sum(g.mass[:, None] * vn, k, G) / g.total[:, None]
     return xo.to(x.dtype), vo.to(v.dtype)

@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import torch
 
-from mdgs.structure import segment_mean, solve3
+from mdgs.structure import segment_mean, segment_sum, solve3
 
 __all__ = ["rotation_matrix", "Twist", "twist", "project", "advance", "perturb"]
 
@@ -79,7 +79,7 @@ def _solve(J: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 def _angular(J: torch.Tensor, r: torch.Tensor, u: torch.Tensor, seg: torch.Tensor, n_seg: int,
              mass: torch.Tensor) -> torch.Tensor:
     """``J^-1 sum_i m_i r_i x u_i`` per object -> [B, S, 3]."""
-    L = r.new_zeros(r.shape[0], n_seg, 3).index_add(1, seg, mass[None, :, None] * torch.linalg.cross(r, u, dim=-1))
+    L = segment_sum(mass[None, :, None] * torch.linalg.cross(r, u, dim=-1), seg, n_seg)
     return _solve(J, L)
 
 
@@ -90,10 +90,10 @@ def twist(x: torch.Tensor, v: torch.Tensor, seg: torch.Tensor, n_seg: int, mass:
     c = segment_mean(x, seg, n_seg, m)
     vc = segment_mean(v, seg, n_seg, m)
     # node count per object, in float64 (an integer index_add is not fused by torch.compile)
-    count = m.new_zeros(n_seg).index_add(0, seg, torch.ones_like(m))
+    count = segment_sum(torch.ones_like(m), seg, n_seg, dim=0)
     r = torch.where((count[seg] > 1)[None, :, None], x - c[:, seg], 0.0)  # exactly 0 for one-node objects
     rr = (r * r).sum(-1)[..., None, None] * torch.eye(3, dtype=r.dtype, device=r.device) - r.unsqueeze(-1) * r.unsqueeze(-2)
-    J = r.new_zeros(r.shape[0], n_seg, 3, 3).index_add(1, seg, m[None, :, None, None] * rr)
+    J = segment_sum(m[None, :, None, None] * rr, seg, n_seg)
     return Twist(c, vc, _angular(J, r, v - vc[:, seg], seg, n_seg, m), J)
 
 

@@ -60,14 +60,29 @@ def solve3(A: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.stack([x1, x2, x3], -1)
 
 
+def segment_sum(a: torch.Tensor, seg: torch.Tensor, n_seg: int, dim: int = 1) -> torch.Tensor:
+    """Sum of ``a`` over the nodes of each segment ``seg`` [N] along ``dim`` (of size N) -> ``a``'s shape
+    with ``n_seg`` at ``dim`` (``index_add``).
+
+    One segment is a plain sum: inductor's CPU code for an ``index_add`` whose indices are all 0 fails
+    to compile on more than one thread (pytorch/pytorch#160391; a scene of one body, or one joint of a
+    kind, would not compile there), and a sum is the cheaper kernel anyway.
+    """
+    if n_seg == 1:
+        return a.sum(dim, keepdim=True)
+    shape = list(a.shape)
+    shape[dim] = n_seg
+    return a.new_zeros(shape).index_add(dim, seg, a)
+
+
 def segment_mean(x: torch.Tensor, seg: torch.Tensor, n_seg: int, weight: torch.Tensor | None = None) -> torch.Tensor:
     """Weighted mean of ``x`` [B, N, D] over the nodes of each segment ``seg`` [N] -> [B, S, D].
 
     ``weight`` [N] (default 1). Empty segments give 0.
     """
     w = torch.ones(seg.shape[0], dtype=x.dtype, device=x.device) if weight is None else weight.to(x.dtype)
-    num = x.new_zeros(x.shape[0], n_seg, x.shape[-1]).index_add(1, seg, x if weight is None else x * w[None, :, None])
-    den = x.new_zeros(n_seg).index_add(0, seg, w).clamp_min(torch.finfo(x.dtype).tiny)
+    num = segment_sum(x if weight is None else x * w[None, :, None], seg, n_seg)
+    den = segment_sum(w, seg, n_seg, dim=0).clamp_min(torch.finfo(x.dtype).tiny)
     return num / den[None, :, None]
 
 
@@ -110,7 +125,7 @@ def kabsch(ref: torch.Tensor, pred: torch.Tensor, seg: torch.Tensor, n_seg: int 
         outer = pc.unsqueeze(-1) * qc.unsqueeze(-2)  # [B, N, 3, 3]
     else:
         outer = weight.to(torch.float64)[None, :, None, None] * pc.unsqueeze(-1) * qc.unsqueeze(-2)
-    H = q.new_zeros(B, n_seg, 3, 3).index_add(1, seg, outer)
+    H = segment_sum(outer, seg, n_seg)
     # a diverged prediction (NaN/Inf) gets a NaN placement instead of an SVD error, so a rollout
     # marks the trajectory as diverged rather than aborting the whole batch
     # (branch-free: no host sync, one graph under torch.compile)

@@ -114,3 +114,33 @@ def test_kabsch_of_a_diverged_prediction_is_nan_not_an_error():
     R, t = kabsch(ref, pred, seg, 1)
     assert torch.isnan(R[1]).all() and torch.isnan(t[1]).all()
     assert torch.allclose(R[0], torch.eye(3, dtype=torch.float64), atol=1e-10) and torch.allclose(t[0], torch.zeros(3, dtype=torch.float64), atol=1e-10)
+
+
+def test_one_segment_sums_compile_on_two_threads_and_match_index_add():
+    """A scene of one body (or one joint of a kind) sums over a single segment: inductor's CPU code for
+    an index_add whose indices are all 0 fails on more than one thread (pytorch/pytorch#160391; MDGS
+    on the user scene at refine 2 did not compile), so segment_sum takes a plain sum there. Compiled on
+    two threads, twist and Kabsch of one 36-node body equal the eager index_add result to float64
+    round-off (1e-12 m: sums of 36 terms of order 1 in another order)."""
+    from mdgs.rigid import twist
+    from mdgs.structure import segment_sum
+
+    g = torch.Generator().manual_seed(0)
+    x, v, ref = torch.randn(2, 36, 3, generator=g), torch.randn(2, 36, 3, generator=g), torch.randn(36, 3, generator=g)
+    m, seg = torch.rand(36, generator=g) + 0.1, torch.zeros(36, dtype=torch.long)
+    a = torch.randn(2, 36, 3, 3, generator=g, dtype=torch.float64)
+    assert torch.allclose(segment_sum(a, seg, 1), a.new_zeros(2, 1, 3, 3).index_add(1, seg, a), rtol=0, atol=1e-12)
+
+    def f(x, v):
+        tw = twist(x, v, seg, 1, m)
+        R, t = kabsch(ref, x, seg, 1, m)
+        return tw.c, tw.vc, tw.omega, R, t
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        got = torch.compile(f, dynamic=False, fullgraph=True)(x, v)
+    finally:
+        torch.set_num_threads(threads)
+    for a, b in zip(got, f(x, v), strict=True):
+        assert torch.allclose(a, b, rtol=0, atol=1e-12)
