@@ -284,3 +284,32 @@ def test_relative_loss_of_the_untrained_prior_model_is_constant_twist_plus_motor
     assert float(huber_loss(x, v, small * 2e-3, small * 5.0, None, 2e-3, 5.0)) == pytest.approx(
         0.5 * float(mse_loss(x, v, small * 2e-3, small * 5.0, None, 2e-3, 5.0)))
     assert float(huber_loss(x, v, big * 2e-3, big * 5.0, None, 2e-3, 5.0)) == pytest.approx(30.0 - 0.5)
+
+
+def test_mdgs_gravity_prior_adds_free_fall_over_one_frame_to_every_moving_body(splits):
+    """The untrained MDGS with ``gravity_prior`` is constant twist plus free fall: every moving body's
+    mass-centre velocity gains g dt (MJCF opt.gravity, 9.81 m/s^2 x 0.01 s) and its angular velocity
+    is unchanged, joints included (a uniform velocity change keeps every hinge), to float32 round-off."""
+    tr, te = splits["cubli-triple"]
+    cls = MODELS["mdgs"]
+    b = batch_of(te, te.pairs(0)[:6], "cpu")
+    tw = {}
+    for prior in (False, True):
+        model = cls.from_data(tr, cls.Config(gravity_prior=prior))
+        model.bind(te)
+        model.eval()
+        sc = model.scene_on("cpu")
+        with torch.no_grad():
+            p = model.step(State(b.x, b.v), b.ctrl)
+        tw[prior] = twist(p.x.double(), p.v.double(), sc.obj, sc.n_obj, sc.mass.double())
+    g_dt = np.asarray(te.mj_model().opt.gravity) * model.config.dt
+    assert abs(g_dt[2] + 9.81 * 0.01) < 1e-9
+    mv = torch.unique(sc.obj[sc.moving("cpu")])  # the static floor keeps still
+    assert 0 < len(mv) < sc.n_obj
+    dvc = (tw[True].vc - tw[False].vc)[:, mv].numpy()
+    np.testing.assert_allclose(dvc, np.broadcast_to(g_dt, dvc.shape), atol=2e-5)
+    np.testing.assert_allclose(tw[True].omega.numpy(), tw[False].omega.numpy(), atol=2e-4)
+    still = [o for o in range(sc.n_obj) if o not in set(mv.tolist())]
+    np.testing.assert_allclose(tw[True].vc[:, still].numpy(), tw[False].vc[:, still].numpy(), atol=1e-6)
+    with pytest.raises(ValueError, match="gravity_prior must be true or false"):
+        cls.Config(gravity_prior="yes")

@@ -593,3 +593,34 @@ def test_stability_and_speed_rows_group_references_before_learned_rows_per_scene
         refs = [lbl for lbl in labels if lbl not in learned_order]
         mujoco = [int(lbl.split("x")[-1]) for lbl in refs if lbl.startswith("mujoco dt x")]
         assert mujoco == sorted(mujoco)
+
+
+def test_only_runs_the_named_rows_and_scenes_and_the_whole_study_counts_them_finished(tmp_path):
+    """--only runs a selection of cells (row labels, scene names) into a results file of its own; the
+    same cells are then finished for any other selection and for the whole study (keys do not depend
+    on the selection); a name that is neither a row nor a scene is one clear error, exit 2."""
+    from mdgs.study import run_study
+    from mdgs.study.runner import select_cells
+
+    path = _write(tmp_path, GOOD.replace('seeds = [0]', 'seeds = [0]\nlong_frames = 0\nsensitivity = 0')
+                  + "\n[budget]\nepochs = 1\nmax_steps = 1\nbatch_size = 4\nvalid_max_pairs = 4\n"
+                  + "[references]\nmujoco_dt_factors = [1, 2]\n")
+    study = load_study(path)
+    out = tmp_path / "o"
+    res = run_study(study, out, only=("mujoco dt x2",))
+    assert (res["cells"], res["ran"]) == (1, 1)
+    assert [ln["label"] for ln in read_results(out)] == ["mujoco dt x2"]
+    assert not (out / "results.jsonl").exists() and len(list(out.glob("results-only-*.jsonl"))) == 1
+    # a row and a scene combine (row AND scene); the cell already run is not run again
+    res = run_study(study, out, only=("mujoco dt x1", "mujoco dt x2", "cubli-single"))
+    assert (res["cells"], res["done"], res["ran"]) == (2, 1, 1)
+    assert [c.label for c in select_cells(study, ("cubli-single",))] == [c.label for c in cells_of(study)]
+    res = run_study(study, out)  # the whole study: only the two cells never selected run
+    assert (res["cells"], res["ran"]) == (len(cells_of(study)), 2)
+    assert sorted(ln["label"] for ln in read_results(out)) == ["constant twist", "mdgs", "mujoco dt x1", "mujoco dt x2"]
+    with pytest.raises(StudyError, match="names no row or scene.*rows: constant twist, mujoco dt x1"):
+        select_cells(study, ("mujoco dt x3",))
+    for extra, phrase in [(["--only", "gnss"], "'gnss' names no row or scene"),
+                          (["--only", "mdgs", "--recost", "aot"], "leave out --cells and --only")]:
+        res = runner.invoke(app, ["study", str(path), "--out", str(out), "--no-report", *extra])
+        assert res.exit_code == 2 and phrase in res.output and "Traceback" not in res.output, res.output

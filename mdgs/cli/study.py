@@ -14,6 +14,10 @@ def study_cmd(
     study_file: Path = typer.Argument(None, help="Study file (TOML), e.g. studies/tiny.toml; required unless --report.", show_default=False),
     out: Path = typer.Option(None, "--out", help="Output folder (rerun the same command to resume); required with STUDY_FILE."),
     cells: str = typer.Option("0/1", "--cells", help="Run only share I of N of the cells (a job array): I/N."),
+    only: list[str] = typer.Option(None, "--only", metavar="NAME",
+                                   help="Run only the cells of this row label (e.g. sgnn, 'mujoco dt x10', "
+                                        "'mdgs refine 2') or scene; repeat it for several. Rows and scenes "
+                                        "combine: --only gns --only cubli-triple runs GNS on the Cubli."),
     report_only: Path = typer.Option(None, "--report", metavar="DIR",
                                      help="Only rebuild the tables and charts of DIR from its results files."),
     no_report: bool = typer.Option(False, "--no-report", help="Do not draw tables and charts after running."),
@@ -31,6 +35,8 @@ def study_cmd(
     if report_only is not None:
         if study_file is not None:
             fail("give either a study file (to run) or --report DIR (to redraw), not both")
+        if only:
+            fail("--only selects cells to run; --report redraws everything finished in DIR: leave out --only")
         try:
             files = report(report_only)
         except StudyError as e:
@@ -41,8 +47,9 @@ def study_cmd(
         fail("give a study file and --out DIR (or --report DIR to redraw the tables and charts)")
     if recost is not None and recost not in ("aot", "inductor", "none"):
         fail(f"--recost {recost!r}: give aot (ahead of time, AOTInductor), inductor (torch.compile) or none (eager)")
-    if recost is not None and cells != "0/1":
-        fail("--recost times every row one after another (so all are timed alike); leave out --cells")
+    if recost is not None and (cells != "0/1" or only):
+        fail("--recost times every row one after another (so all are timed alike) and skips the rows "
+             "already timed; leave out --cells and --only")
     share = parse_share(cells, "--cells")
     try:
         study = load_study(study_file)
@@ -54,7 +61,7 @@ def study_cmd(
             if recost is not None:
                 summary = _recost(study, out, recost, bar, console)
             else:
-                summary = _run(study, out, share, bar, console)
+                summary = _run(study, out, share, bar, console, tuple(only or ()))
     except (StudyError, DatasetError, RunError, ModelError, ValueError) as e:
         fail(str(e))
     except KeyboardInterrupt:
@@ -70,7 +77,7 @@ def study_cmd(
         typer.echo(f"{out}: " + ", ".join(files))
 
 
-def _run(study, out, share, bar, console) -> str:
+def _run(study, out, share, bar, console, only) -> str:
     """Run the share's cells under a progress bar; returns the summary line."""
     from mdgs.study import run_study
 
@@ -82,7 +89,8 @@ def _run(study, out, share, bar, console) -> str:
         if e["kind"] == "plan":
             plan["done"] = e["cells"] - e["todo"]
             bar.update(overall, total=e["cells"], completed=plan["done"])
-            console.print(f"study {study.name}: {e['cells']} cells in this share, {e['todo']} to run")
+            sel = f" of {', '.join(only)}" if only else ""
+            console.print(f"study {study.name}: {e['cells']} cells{sel} in this share, {e['todo']} to run")
         elif e["kind"] == "cell":  # index: cells of this run finished so far
             bar.update(overall, completed=plan["done"] + e["index"])
             bar.update(inner, description=e["label"], total=None, completed=0, visible=True)
@@ -95,7 +103,7 @@ def _run(study, out, share, bar, console) -> str:
         elif e["kind"] == "wait":
             bar.update(inner, description=f"  waiting for another share training {e['run']}", total=None)
 
-    res = run_study(study, out, share, progress=on)
+    res = run_study(study, out, share, progress=on, only=only)
     bar.update(overall, completed=res["done"] + res["ran"])
     return f"{out}: {res['done'] + res['ran']}/{res['cells']} cells finished ({res['ran']} run now)"
 

@@ -120,6 +120,10 @@ class MDGSConfig:
         velocity change over ``dt`` of each motor's joint with its parent held,
         :func:`mdgs.actuation.motor_accelerations`, is added to g's increment, so g learns only
         what the recoil, contacts and coupling add; F as in the paper), "step" (both).
+    gravity_prior : add the scene's gravity over ``dt`` (``g dt``, MJCF ``opt.gravity``) to the
+        velocity increment of every moving node, as ``actuation = "prior"`` adds the motors' response,
+        so g learns what contacts and joints add to free fall instead of free fall itself. The
+        untrained model then falls through floors (a resting body's support is left to g to learn).
     pushforward : 0 (the paper: one-step L_mse); K > 0 adds a second L_mse term, on the step
         taken from the model's own state after K simulated steps (rollout steps, joint projection
         included, without gradient) against the true frame t + K + 1: the pushforward trick of
@@ -166,6 +170,7 @@ class MDGSConfig:
     cst_weight: float = 1.0
     dense_max_nodes: int = 256
     actuation: str = "none"
+    gravity_prior: bool = False
     pushforward: int = 0
     unroll: int = 0
     features: str = "paper"
@@ -217,6 +222,8 @@ class MDGSConfig:
             raise ValueError(f"features must be one of {', '.join(FEATURES)}, got {self.features!r}")
         if self.loss not in LOSSES:
             raise ValueError(f"loss must be one of {', '.join(LOSSES)}, got {self.loss!r}")
+        if not isinstance(self.gravity_prior, bool):
+            raise ValueError(f"gravity_prior must be true or false, got {self.gravity_prior!r}")
         if not isinstance(self.self_weight, bool):
             raise ValueError(f"self_weight must be true or false, got {self.self_weight!r}")
 
@@ -368,6 +375,7 @@ class MDGS(Simulator):
         self._sign: torch.Tensor | None = None
         self._joints = JointSet()
         self._drives = DriveSet()
+        self._gravity: torch.Tensor | None = None
         self.future = int(max(config.pushforward, config.unroll))
 
     # --- construction ------------------------------------------------------------------------
@@ -446,6 +454,8 @@ class MDGS(Simulator):
                         if self.config.joints else JointSet())
         self._drives = (drives_of(split.mj_model(), split.static["node_body"], split.static["node_centroid"])
                         if self.config.actuation != "none" else DriveSet())
+        self._gravity = (torch.tensor(np.asarray(split.mj_model().opt.gravity, float), dtype=torch.float32)
+                         if self.config.gravity_prior else None)
 
     def scene_on(self, dev) -> SceneGraph:
         """The bound scene graph on ``dev`` (cached)."""
@@ -636,6 +646,9 @@ class MDGS(Simulator):
             dv_act = c.dt * motor_accelerations(x.detach(), ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev),
                                                 scene.n_obj)
             out = out + torch.cat([torch.zeros_like(dv_act), dv_act / sv], -1)
+        if self._gravity is not None:  # free fall over dt on every moving node
+            dv_g = (c.dt * self._gravity.to(dev)) * scene.moving(dev).unsqueeze(-1).to(out.dtype)  # [N, 3]
+            out = out + torch.cat([torch.zeros_like(dv_g), dv_g / sv], -1)
         x1, v1 = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx, dv_scale=sv,
                                            dvc_scale=c.dvc_scale, dw_scale=c.dw_scale)
         pose = None

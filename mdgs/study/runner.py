@@ -52,7 +52,7 @@ from mdgs.runs import LOCK_NAME, FolderBusy, atomic_json, folder_lock, load_run,
 from mdgs.study.config import SceneEntry, StudyConfig, StudyError
 from mdgs.train import TrainConfig, TrainingError, train
 
-__all__ = ["Cell", "cells_of", "run_study", "recost_study", "read_results", "RESULTS_VERSION", "COSTS_NAME"]
+__all__ = ["Cell", "cells_of", "select_cells", "run_study", "recost_study", "read_results", "RESULTS_VERSION", "COSTS_NAME"]
 
 #: Revision of the sensitivity cells: 1 evaluates them on the long test set too (the stability table's
 #: chaos floor); lines of revision 0 (test set only) give way to these in :func:`read_results`.
@@ -385,9 +385,18 @@ def _train_or_wait(cfg: TrainConfig, progress, wait: bool = True) -> None:
 
 # --------------------------------------------------------------------------- results file
 
-def _results_path(out: Path, share: tuple[int, int]) -> Path:
+def _results_path(out: Path, share: tuple[int, int], tag: str = "") -> Path:
+    """``results.jsonl``, ``results-I-of-N.jsonl`` for a share, ``results-<tag>[-I-of-N].jsonl`` for a
+    selection of cells (``--only``): every process appends to a file of its own."""
     i, n = share
-    return out / ("results.jsonl" if n == 1 else f"results-{i}-of-{n}.jsonl")
+    return out / ("results" + (f"-{tag}" if tag else "") + ("" if n == 1 else f"-{i}-of-{n}") + ".jsonl")
+
+
+def _selection_tag(only) -> str:
+    """A file-name tag for a selection of cells (``only-`` and a hash of the names; "" for none)."""
+    if not only:
+        return ""
+    return "only-" + hashlib.sha256(json.dumps(sorted(set(only))).encode()).hexdigest()[:8]
 
 
 def read_results(out: str | os.PathLike, usable: bool = False) -> list[dict]:
@@ -516,18 +525,47 @@ def _claim_folder(study: StudyConfig, out: Path) -> None:
         atomic_json({"name": study.name, "path": study.path, "fingerprint": study.fingerprint()}, marker)
 
 
+def select_cells(study: StudyConfig, only: tuple[str, ...] | list[str] = ()) -> list[Cell]:
+    """The cells of :func:`cells_of` whose row label or scene is named in ``only`` (all cells if empty).
+
+    Each name is a row label (``"sgnn"``, ``"mdgs + motor prior"``, ``"mujoco dt x10"``, ``"constant
+    twist"``, ``"sensitivity floor"``, ``"mdgs refine 2"``) or a scene name; a cell is kept when its
+    label is among the labels named (or none is named) and its scene among the scenes named (or none
+    is). A name that is neither raises :class:`StudyError` listing both. Cell keys do not depend on the
+    selection, so cells run under one selection are finished for every other and for the whole study.
+    """
+    cells = cells_of(study)
+    if not only:
+        return cells
+    labels = list(dict.fromkeys(c.label for c in cells))
+    scenes = [sc.name for sc in study.scenes]
+    unknown = [o for o in only if o not in labels and o not in scenes]
+    if unknown:
+        raise StudyError(f"{study.path}: --only {', '.join(map(repr, unknown))} names no row or scene of "
+                         f"study {study.name!r}; rows: {', '.join(labels)}; scenes: {', '.join(scenes)}")
+    want_l = {o for o in only if o in labels}
+    want_s = {o for o in only if o in scenes}
+    return [c for c in cells if (not want_l or c.label in want_l) and (not want_s or c.scene.name in want_s)]
+
+
 def run_study(study: StudyConfig, out: str | os.PathLike, share: tuple[int, int] = (0, 1),
-              progress: Callable[[dict], None] | None = None) -> dict:
-    """Run this process's share of the study's cells; returns counts ``{"cells", "done", "ran"}``."""
+              progress: Callable[[dict], None] | None = None, only: tuple[str, ...] | list[str] = ()) -> dict:
+    """Run this process's share of the study's cells; returns counts ``{"cells", "done", "ran"}``.
+
+    ``only``: run just the cells of these rows or scenes (:func:`select_cells`), shared out among the
+    ``N`` of ``share`` after selecting them. Other cells already in ``out`` stay, and the tables are
+    drawn from everything finished."""
     progress = progress or (lambda e: None)
     out = Path(out)
+    cells = select_cells(study, only)
     _check_folder(study, out)
     i, n = share
-    # one process per share of a study folder (each cell's run folder has its own lock as well)
-    with folder_lock(out, f"mdgs study {study.name} (cells {i}/{n})",
-                     name=LOCK_NAME if n == 1 else f"{LOCK_NAME}-{i}-of-{n}"):
+    # one process per share (of one selection) of a study folder; each cell has its own lock as well
+    tag = _selection_tag(only)
+    with folder_lock(out, f"mdgs study {study.name} (cells {i}/{n}{' of ' + ', '.join(only) if only else ''})",
+                     name=LOCK_NAME + (f"-{tag}" if tag else "") + ("" if n == 1 else f"-{i}-of-{n}")):
         _claim_folder(study, out)
-        return _run_share(study, out, share, progress)
+        return _run_share(study, out, share, progress, cells, _results_path(out, share, tag))
 
 
 def recost_study(study: StudyConfig, out: str | os.PathLike, mode: str = "aot",
@@ -615,16 +653,16 @@ def _finished(out: Path) -> set[str]:
     return {r["cell"] for r in read_results(out) if r.get("status") != "error"}
 
 
-def _run_share(study: StudyConfig, out: Path, share: tuple[int, int], progress) -> dict:
+def _run_share(study: StudyConfig, out: Path, share: tuple[int, int], progress, cells: list[Cell],
+               path: Path) -> dict:
     """Run the share's unfinished cells in study order. Each cell is run under its own lock
     (``OUT/.lock-cell-<key>``) after a fresh look at the results files, so processes whose shares
     overlap (``--cells 1/2`` beside ``--cells 3/4``, a job array resubmitted with another N) never run
     a cell twice; a cell that another process holds, or whose run another process is training, goes
     to the back of the queue, and the last cell left waits for it."""
-    path = _results_path(out, share)
     _repair(path)
     i, n = share
-    mine = [c for k, c in enumerate(cells_of(study)) if k % n == i]
+    mine = [c for k, c in enumerate(cells) if k % n == i]
     done0 = _finished(out)
     todo = [c for c in mine if c.key(study) not in done0]
     progress({"kind": "plan", "cells": len(mine), "todo": len(todo)})
