@@ -624,3 +624,20 @@ def test_only_runs_the_named_rows_and_scenes_and_the_whole_study_counts_them_fin
                           (["--only", "mdgs", "--recost", "aot"], "leave out --cells and --only")]:
         res = runner.invoke(app, ["study", str(path), "--out", str(out), "--no-report", *extra])
         assert res.exit_code == 2 and phrase in res.output and "Traceback" not in res.output, res.output
+
+
+def test_speed_chart_marks_learned_rows_whose_recosted_step_ran_eagerly(tmp_path):
+    """After --recost, a learned row whose step did not compile is timed eagerly: the chart draws it
+    as a square (its cost is not comparable to a compiled row's at face value); rows timed while the
+    study ran (no recost) and references are never marked; the chart is still drawn."""
+    from mdgs.study.charts import _eager_rows, speed_accuracy
+
+    lines = [_line("reference", "constant-twist", "constant twist", 0, [1.0], [2.0], 0.4),
+             _line("learned", "a", "a", 0, [0.5], [1.0], 1.0), _line("learned", "b", "b", 0, [0.5], [1.0], 9.0),
+             _line("learned", "c", "c", 0, [0.5], [1.0], 9.0)]
+    for ln, mode in zip(lines, ["none", "aot", "none", None], strict=True):
+        if mode:
+            ln["cost"].update(recost=True, compiled=mode, requested="aot")
+    assert _eager_rows(lines, "s") == {"b"}
+    speed_accuracy(lines, tmp_path / "chart")
+    assert (tmp_path / "chart.png").stat().st_size > 0

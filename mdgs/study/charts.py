@@ -68,6 +68,13 @@ _REF_MARKERS = {"constant twist": "s", "constant twist + joints": "D", "constant
                 "constant twist + motors + joints": "v"}
 
 
+def _eager_rows(lines, scene) -> set[str]:
+    """Labels of the scene's learned rows that ``--recost`` timed eagerly because their step does not
+    compile (drawn as squares beside the compiled rows' circles); none without recosted rows."""
+    return {ln["label"] for ln in lines if ln["scene"] == scene and ln["kind"] == "learned"
+            and ln.get("cost", {}).get("recost") and ln["cost"].get("compiled") == "none"}
+
+
 def speed_accuracy(lines, path: Path) -> None:
     """One panel per scene; one legend for the figure, each model in the same colour on every panel.
     Errors far below everything else (MuJoCo at the data's own timestep reproduces the data to
@@ -75,8 +82,7 @@ def speed_accuracy(lines, path: Path) -> None:
     plt = _plt()
     scenes = _scenes(lines)
     modes = sorted({ln["cost"]["requested"] for ln in lines if ln.get("cost", {}).get("recost")})
-    xlabel = ("cost: ms per simulated frame, 1 trajectory (log)" if not modes else
-              f"cost: ms per frame, 1 trajectory, step compiled where it compiles ({'/'.join(modes)}; log)")
+    xlabel = "cost: ms per simulated frame, 1 trajectory (log)"
     rows, cols = _grid(len(scenes))
     styles = _styles(lines)
     learned = [lbl for lbl, st in styles.items() if st["ls"] == "-"]
@@ -84,8 +90,10 @@ def speed_accuracy(lines, path: Path) -> None:
     panels_h = 4.6 * rows
     fig, axes = plt.subplots(rows, cols, figsize=(5.6 * cols, panels_h), squeeze=False)
     handles: dict = {}
+    eager_note = False
     for ax, scene in zip(axes.flat, scenes, strict=False):
         pts = _points(lines, scene)
+        eager = _eager_rows(lines, scene)
         front = _pareto(pts)
         fl = _floor(lines, scene)
         errs = [p[3] for lbl, p in pts.items() if p[3] is not None and p[3] > 0 and lbl != "mujoco dt x1"]
@@ -112,13 +120,15 @@ def speed_accuracy(lines, path: Path) -> None:
                 handles.setdefault(lbl, h)
                 continue
             col = colour[lbl]
+            mk = "s" if lbl in eager else "o"
+            eager_note |= lbl in eager
             if e is None:
                 ax.plot([c], [1], marker="x", ms=9, color=col, transform=ax.get_xaxis_transform(), clip_on=False)
                 handles.setdefault(f"{lbl} (x at the top: failed on every trajectory by t = 110)", ax.plot([], [], "x", color=col)[0])
                 continue
-            h = ax.errorbar([c], [y(e)], xerr=[cs], yerr=[[min(es, 0.9 * y(e))], [es]], fmt="o", color=col,
+            h = ax.errorbar([c], [y(e)], xerr=[cs], yerr=[[min(es, 0.9 * y(e))], [es]], fmt=mk, color=col,
                             mfc="none" if failed else col)  # on a log axis a spread above the mean stops short of 0
-            handles.setdefault(lbl, ax.plot([], [], "o", color=col)[0] if failed else h)
+            handles.setdefault(lbl, ax.plot([], [], mk, color=col)[0] if failed else h)
         for lbl in front:
             ax.plot([pts[lbl][1]], [y(pts[lbl][3])], "o", ms=14, mfc="none", mec="k", lw=0.8)
         if fl is not None:
@@ -132,12 +142,16 @@ def speed_accuracy(lines, path: Path) -> None:
     handles.setdefault("Pareto front (circled)", plt.Line2D([], [], marker="o", ms=10, mfc="none", mec="k", ls=""))
     handles.setdefault("hollow: failed on some trajectories; \u25bc: below the axis (value in brackets)",
                        plt.Line2D([], [], marker="o", mfc="none", mec="0.3", ls=""))
+    if modes:  # the cost axis of recosted rows: say how the steps ran (not in the axis label: panels share a row)
+        note = f"cost: steps compiled ({'/'.join(modes)}) where they compile"
+        handles.setdefault(note + ("; square: a learned row timed eagerly (it does not)" if eager_note else ""),
+                           plt.Line2D([], [], marker="s" if eager_note else "", mfc="none", mec="0.3", ls=""))
     for ax in list(axes.flat)[len(scenes):]:
         ax.axis("off")
     def rank(key):  # learned rows (study order), then the references, then the notes on markers
         base = key.split(" (x at the top")[0]
         return (0, learned.index(base)) if base in learned else (1, 0) if key[0].islower() or key.startswith("MuJoCo") else (2, 0)
-    notes = ("sensitivity floor", "Pareto front", "hollow:")
+    notes = ("sensitivity floor", "Pareto front", "hollow:", "cost:")
     handles = dict(sorted(handles.items(), key=lambda kv: (2, 0) if kv[0].startswith(notes) else rank(kv[0])))
     _legend_below(fig, handles, 2 if cols > 1 else 1, panels_h)
     atomic_savefig(fig, path.with_suffix(".png"), dpi=110)
