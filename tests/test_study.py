@@ -641,3 +641,31 @@ def test_speed_chart_marks_learned_rows_whose_recosted_step_ran_eagerly(tmp_path
     assert _eager_rows(lines, "s") == {"b"}
     speed_accuracy(lines, tmp_path / "chart")
     assert (tmp_path / "chart.png").stat().st_size > 0
+
+
+def test_resolution_cells_refine_a_named_row_with_its_settings_and_report_its_stability(tmp_path):
+    """[resolution] model may name a [[models]] row: its cells train that row's model with its settings
+    at each refinement (label "<row> refine <r>"); a name that is neither a registry model nor a row is
+    one clear error. The Resolution table sets them beside the study's own row of that label (refine 1)
+    and, where the cells ran the long set, counts the trajectories that never failed."""
+    from mdgs.study.tables import _resolution_table
+
+    text = GOOD + '[[models]]\nname = "mdgs"\nlabel = "mdgs + motor prior"\nset = { actuation = "prior" }\n'
+    study = load_study(_write(tmp_path, text + '[resolution]\nmodel = "mdgs + motor prior"\nrefine = [2]\nseeds = [0, 1]\n'))
+    res = [c for c in cells_of(study) if c.kind == "resolution"]
+    assert [(c.model, c.label, dict(c.settings), c.seed, c.refine) for c in res] == [
+        ("mdgs", "mdgs + motor prior refine 2", {"actuation": "prior"}, s, 2) for s in (0, 1)]
+    plain = load_study(_write(tmp_path, GOOD + '[resolution]\nmodel = "mdgs"\nrefine = [2]\n'))
+    (cell,) = [c for c in cells_of(plain) if c.kind == "resolution"]
+    assert (cell.label, cell.settings) == ("mdgs refine 2", ())  # the key of studies run before rows could be named
+    with pytest.raises(StudyError, match="neither a model of the registry nor the label"):
+        load_study(_write(tmp_path, text + '[resolution]\nmodel = "mdgs + prior"\nrefine = [2]\n'))
+
+    def line(label, kind, refine, ttf):
+        ln = _line(kind, "mdgs", label, 0, [1.0], [2.0], 0.5)
+        ln.update(refine=refine, parameters=10, sets={**ln["sets"], "long": {"time_to_failure": ttf}})
+        return ln
+    lines = [line("mdgs + motor prior", "learned", 1, [None, 5]), line("mdgs", "learned", 1, [None, None]),
+             line("mdgs + motor prior refine 2", "resolution", 2, [None, None])]
+    t = _resolution_table(lines)
+    assert [(r[1], r[-1]) for r in t.rows] == [("1", "1/2"), ("2", "2/2")]  # plain mdgs is not the base row

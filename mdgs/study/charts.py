@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from mdgs.runs import atomic_savefig
-from mdgs.study.tables import _pareto, _points, _run_mean, _scenes
+from mdgs.study.tables import _pareto, _points, _resolution_base, _run_mean, _scenes
 
 __all__ = ["draw_charts"]
 
@@ -237,8 +237,8 @@ def resolution(lines, path: Path) -> bool:
     if not res:
         return False
     plt = _plt()
-    model = res[0]["model"]
-    use = res + [ln for ln in lines if ln["kind"] == "learned" and ln["model"] == model and ln["label"] == model]
+    base = _resolution_base(res)
+    use = res + [ln for ln in lines if ln["kind"] == "learned" and ln["label"] == base]
     use = [ln for ln in use if ln.get("status", "ok") == "ok"]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     for k, scene in enumerate(_scenes(use)):
@@ -251,6 +251,7 @@ def resolution(lines, path: Path) -> bool:
         cost = [np.mean([ln["cost"]["single"]["ms_per_frame"] for ln in by[r]]) for r in rs]
         axes[0].plot(rs, err, "-o", color=f"C{k}", label=scene)
         axes[1].plot(rs, cost, "-o", color=f"C{k}", label=scene)
+    fig.suptitle(f"{base}: error and cost against the element partition", fontsize=10)
     axes[0].set_ylabel("position MSE at t = 40 (m$^2$)")
     axes[1].set_ylabel("ms per frame, 1 trajectory")
     for ax in axes:

@@ -41,7 +41,7 @@ A study file has these tables (every key optional unless marked; defaults in the
                                         # default false): what an MDGS whose network outputs zero simulates
 
     [resolution]                        # MDGS error and cost against the element resolution
-    model = "mdgs"
+    model = "mdgs"                      # a registry name, or the label of a [[models]] row (its settings)
     refine = [1, 2]
     seeds = [0]
 
@@ -127,6 +127,8 @@ class StudyConfig:
     motor_twist: bool = False
     joint_twist: bool = False
     resolution_model: str = "mdgs"
+    resolution_label: str = "mdgs"
+    resolution_settings: tuple[tuple[str, object], ...] = ()
     resolution_refine: tuple[int, ...] = ()
     resolution_seeds: tuple[int, ...] = (0,)
 
@@ -290,13 +292,18 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
     rs = _take(doc, "resolution", dict, f, {})
     where = f"{f} [resolution]"
     _unknown(rs, {"model", "refine", "seeds"}, where)
-    rmodel = _take(rs, "model", str, where, "mdgs")
+    rlabel = _take(rs, "model", str, where, "mdgs")
+    row = next((m for m in models if m.label == rlabel), None)  # a [[models]] row: its model and settings
+    rmodel, rsettings = (row.name, row.settings) if row is not None else (rlabel, ())
     if rs and rmodel not in MODELS:
-        raise StudyError(f"{where}: model {rmodel!r} is unknown")
+        raise StudyError(f"{where}: model {rlabel!r} is neither a model of the registry nor the label of a "
+                         f"[[models]] row; rows: {', '.join(m.label for m in models)}")
+    if rs and not MODELS[rmodel].learned:
+        raise StudyError(f"{where}: {rmodel!r} is a reference; the resolution study trains a learned model")
     refine = _ints(rs, "refine", where, (), lo=1)
     return StudyConfig(name=name, path=str(path.resolve()), preset=preset, trajectories=trajectories, seeds=seeds, device=device,
                        long_frames=long_frames, long_trajectories=long_traj, failure_factor=failure,
                        sensitivity=sens, sensitivity_seeds=sens_seeds, budget=budget, scenes=tuple(scenes),
                        models=tuple(models), mujoco_dt_factors=dts, motor_twist=motors, joint_twist=joints,
-                       resolution_model=rmodel,
+                       resolution_model=rmodel, resolution_label=rlabel, resolution_settings=rsettings,
                        resolution_refine=refine, resolution_seeds=_ints(rs, "seeds", where, (0,)))

@@ -123,8 +123,8 @@ def cells_of(study: StudyConfig) -> list[Cell]:
     for r in study.resolution_refine:
         for seed in study.resolution_seeds:
             for sc in study.scenes:
-                out.append(Cell("resolution", sc, study.resolution_model, f"{study.resolution_model} refine {r}",
-                                (), seed, r))
+                out.append(Cell("resolution", sc, study.resolution_model, f"{study.resolution_label} refine {r}",
+                                study.resolution_settings, seed, r))
     return out
 
 
@@ -298,7 +298,7 @@ def _run_cell(study: StudyConfig, out: Path, cell: Cell, progress, t0: float, wa
             vd = load_split(_dataset(study, out, cell.scene, variant=v) / "test.h5")
             progress({"kind": "evaluate", "set": v})
             sets[v] = _evaluate_set(model, vd, dev, study.failure_factor, anchors, False)
-    if cell.kind in ("learned", "reference", "sensitivity") and study.long_frames:
+    if cell.kind in ("learned", "reference", "sensitivity", "resolution") and study.long_frames:
         ld = load_split(_dataset(study, out, cell.scene, cell.refine, long=True) / "test.h5")
         progress({"kind": "evaluate", "set": "long"})
         sets["long"] = _evaluate_set(model, ld, dev, study.failure_factor, anchors, True)
