@@ -669,3 +669,5 @@ def test_resolution_cells_refine_a_named_row_with_its_settings_and_report_its_st
              line("mdgs + motor prior refine 2", "resolution", 2, [None, None])]
     t = _resolution_table(lines)
     assert [(r[1], r[-1]) for r in t.rows] == [("1", "1/2"), ("2", "2/2")]  # plain mdgs is not the base row
+    from mdgs.study.charts import _styles  # the charts draw resolution rows (now on the long set) in colour too
+    assert _styles(lines)["mdgs + motor prior refine 2"]["ls"] == "-"

@@ -174,14 +174,14 @@ _PALETTE = ["C0", "C1", "C2", "C3", "C4", "C5", "C6", "C8", "C9", "#7b4173", "#6
 
 
 def _styles(lines) -> dict:
-    """``{label: plot kwargs}`` for every row of the study, the same on every panel: learned rows in
-    colour (study order), references in grey with their own dash pattern."""
+    """``{label: plot kwargs}`` for every row of the study, the same on every panel: learned rows (and the
+    resolution study's rows) in colour (study order), references in grey with their own dash pattern."""
     out, n_learned, n_ref = {}, 0, 0
     for ln in lines:
         lbl = ln["label"]
-        if lbl in out or ln["kind"] == "resolution":
+        if lbl in out:
             continue
-        if ln["kind"] == "learned":
+        if ln["kind"] in ("learned", "resolution"):  # a resolution row (a finer partition) is a learned row too
             out[lbl] = dict(color=_PALETTE[n_learned % len(_PALETTE)], ls="-", lw=1.5)
             n_learned += 1
         else:  # 3 greys x 4 dash patterns: twelve references told apart
