@@ -648,6 +648,7 @@ def test_resolution_cells_refine_a_named_row_with_its_settings_and_report_its_st
     at each refinement (label "<row> refine <r>"); a name that is neither a registry model nor a row is
     one clear error. The Resolution table sets them beside the study's own row of that label (refine 1)
     and, where the cells ran the long set, counts the trajectories that never failed."""
+    from mdgs.study.charts import _styles
     from mdgs.study.tables import _resolution_table
 
     text = GOOD + '[[models]]\nname = "mdgs"\nlabel = "mdgs + motor prior"\nset = { actuation = "prior" }\n'
@@ -669,5 +670,4 @@ def test_resolution_cells_refine_a_named_row_with_its_settings_and_report_its_st
              line("mdgs + motor prior refine 2", "resolution", 2, [None, None])]
     t = _resolution_table(lines)
     assert [(r[1], r[-1]) for r in t.rows] == [("1", "1/2"), ("2", "2/2")]  # plain mdgs is not the base row
-    from mdgs.study.charts import _styles  # the charts draw resolution rows (now on the long set) in colour too
-    assert _styles(lines)["mdgs + motor prior refine 2"]["ls"] == "-"
+    assert _styles(lines)["mdgs + motor prior refine 2"]["ls"] == "-"  # the charts draw resolution rows in colour
