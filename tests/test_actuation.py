@@ -170,20 +170,28 @@ def test_a_motors_loads_sum_to_zero_and_a_wheel_turns_alike_free_or_held(splits)
                                atol=1e-9 * float(dw.abs().max()))  # float32 positions: round-off of the fits
 
 
-def test_mdgs_motor_prior_starts_from_the_wheels_joint_response(splits):
-    tr, te = splits["cubli-triple"]
+def _untrained_step_twists(tr, te, b, settings: dict) -> tuple[dict, object]:
+    """One step of the untrained MDGS (zero_init: g's output starts at zero) from batch ``b`` under each
+    named setting -> ``({name: Twist of every object after the step}, the last model)``."""
     cls = MODELS["mdgs"]
-    b = batch_of(te, te.pairs(0)[:6], "cpu")
-    b.ctrl[:] = torch.tensor([3.0, -2.0, 1.0])
-    omega = {}
-    for act in ("none", "prior"):
-        model = cls.from_data(tr, cls.Config(actuation=act))  # zero_init: g's output starts at zero
+    out = {}
+    for name, kw in settings.items():
+        model = cls.from_data(tr, cls.Config(**kw))
         model.bind(te)
         model.eval()
         sc = model.scene_on("cpu")
         with torch.no_grad():
             p = model.step(State(b.x, b.v), b.ctrl)
-        omega[act] = twist(p.x.double(), p.v.double(), sc.obj, sc.n_obj, sc.mass.double()).omega
+        out[name] = twist(p.x.double(), p.v.double(), sc.obj, sc.n_obj, sc.mass.double())
+    return out, model
+
+
+def test_mdgs_motor_prior_starts_from_the_wheels_joint_response(splits):
+    tr, te = splits["cubli-triple"]
+    b = batch_of(te, te.pairs(0)[:6], "cpu")
+    b.ctrl[:] = torch.tensor([3.0, -2.0, 1.0])
+    tws, model = _untrained_step_twists(tr, te, b, {act: {"actuation": act} for act in ("none", "prior")})
+    omega = {act: tw.omega for act, tw in tws.items()}
     ds = model._drives
     m = te.mj_model()
     for dr in ds.drives:
@@ -293,15 +301,8 @@ def test_mdgs_gravity_prior_adds_free_fall_over_one_frame_to_every_moving_body(s
     tr, te = splits["cubli-triple"]
     cls = MODELS["mdgs"]
     b = batch_of(te, te.pairs(0)[:6], "cpu")
-    tw = {}
-    for prior in (False, True):
-        model = cls.from_data(tr, cls.Config(gravity_prior=prior))
-        model.bind(te)
-        model.eval()
-        sc = model.scene_on("cpu")
-        with torch.no_grad():
-            p = model.step(State(b.x, b.v), b.ctrl)
-        tw[prior] = twist(p.x.double(), p.v.double(), sc.obj, sc.n_obj, sc.mass.double())
+    tw, model = _untrained_step_twists(tr, te, b, {prior: {"gravity_prior": prior} for prior in (False, True)})
+    sc = model.scene_on("cpu")
     g_dt = np.asarray(te.mj_model().opt.gravity) * model.config.dt
     assert abs(g_dt[2] + 9.81 * 0.01) < 1e-9
     mv = torch.unique(sc.obj[sc.moving("cpu")])  # the static floor keeps still
