@@ -51,7 +51,8 @@ import torch
 
 from mdgs.structure import fixes_rotation, kabsch, segment_mean
 
-__all__ = ["Drive", "DriveSet", "drives_of", "actuation_forces", "motor_accelerations"]
+__all__ = ["Drive", "DriveSet", "Link", "drives_of", "actuation_forces", "motor_accelerations",
+           "coupled_motor_accelerations"]
 
 
 @dataclass(frozen=True)
@@ -83,13 +84,37 @@ class Drive:
     subtree: tuple[int, ...] = ()
 
 
+@dataclass(frozen=True)
+class Link:
+    """How one object moves against its parent object, for :func:`coupled_motor_accelerations`.
+
+    child, parent : object indices (parent -1: the world, a fixed frame).
+    kind : "hinge", "slide", "ball", "weld" (no joint) or "free".
+    axis : [3] unit joint axis; perp : [2, 3] two unit vectors completing it to an orthonormal basis;
+    anchor : [3] joint position (m); all three in the parent's body frame (the world's for parent -1),
+    where a hinge's axis and anchor stay whatever the joint's angle, so they are known even for a
+    child whose elements do not fix its rotation (a thin pole); a slide's anchor at ``qpos0`` (moving
+    it along the axis changes no row). armature : the joint's armature (hinge, slide; 0 otherwise).
+    """
+
+    child: int
+    parent: int
+    kind: str
+    axis: np.ndarray
+    perp: np.ndarray
+    anchor: np.ndarray
+    armature: float = 0.0
+
+
 @dataclass
 class DriveSet:
     """The motors whose loads :func:`actuation_forces` applies, the bodies' inertial data, and what is skipped (why).
 
     mass : [S] MJCF mass of each object's body; inertia, inv_inertia : [S, 3, 3] its inertia tensor
     about its mass centre in its body frame, and the inverse (zero where singular); com : [S, 3]
-    its mass centre in its body frame (``body_ipos``).
+    its mass centre in its body frame (``body_ipos``); links : one :class:`Link` per moving object
+    whose joint :func:`coupled_motor_accelerations` can write (the others are left free there, and named,
+    with the reason, in ``unlinked``); fixed : [S] objects that do not move (the world body's elements).
     """
 
     drives: list[Drive] = field(default_factory=list)
@@ -98,6 +123,9 @@ class DriveSet:
     inertia: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
     inv_inertia: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 3)))
     com: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    links: list[Link] = field(default_factory=list)
+    unlinked: list[str] = field(default_factory=list)
+    fixed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __bool__(self) -> bool:
@@ -168,12 +196,39 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
         if b != 0 and np.linalg.cond(inertia[k]) < 1e12:
             inv_inertia[k] = np.linalg.inv(inertia[k])
         posable[k] = fixes_rotation(node_centroid[node_body == b])
-    out = DriveSet(mass=mass, inertia=inertia, inv_inertia=inv_inertia, com=com)
+    out = DriveSet(mass=mass, inertia=inertia, inv_inertia=inv_inertia, com=com, fixed=bodies == 0)
+    name = lambda kind, i: mujoco.mj_id2name(m, kind, i) or f"#{i}"  # noqa: E731
+    kinds = {int(mujoco.mjtJoint.mjJNT_HINGE): "hinge", int(mujoco.mjtJoint.mjJNT_SLIDE): "slide",
+             int(mujoco.mjtJoint.mjJNT_BALL): "ball", int(mujoco.mjtJoint.mjJNT_FREE): "free"}
+    for k, b in enumerate(int(x) for x in bodies):
+        if b == 0:
+            continue
+        b_name = f"body {name(mujoco.mjtObj.mjOBJ_BODY, b)}"
+        p = int(m.body_parentid[b])
+        if p != 0 and p not in obj_of:
+            out.unlinked.append(f"{b_name}: its parent body has no elements (left free in the coupled response)")
+            continue
+        nj = int(m.body_jntnum[b])
+        if nj > 1:
+            out.unlinked.append(f"{b_name}: has {nj} joints (left free in the coupled response)")
+            continue
+        j = int(m.body_jntadr[b]) if nj else -1
+        kind = kinds[int(m.jnt_type[j])] if nj else "weld"
+        q0 = np.zeros(9)
+        mujoco.mju_quat2Mat(q0, m.body_quat[b])
+        q0 = q0.reshape(3, 3)  # the child frame in the parent frame at qpos0
+        axis = q0 @ (np.array(m.jnt_axis[j], float) if nj else np.array([0.0, 0.0, 1.0]))
+        axis = axis / np.linalg.norm(axis)
+        e1 = np.cross(axis, np.eye(3)[int(np.argmin(np.abs(axis)))])
+        e1 /= np.linalg.norm(e1)
+        anchor = m.body_pos[b] + q0 @ (np.array(m.jnt_pos[j], float) if nj else np.array(m.body_ipos[b], float))
+        arm = float(m.dof_armature[m.jnt_dofadr[j]]) if kind in ("hinge", "slide") else 0.0
+        out.links.append(Link(k, obj_of[p] if p != 0 else -1, kind, axis, np.stack([e1, np.cross(axis, e1)]),
+                              anchor, arm))
 
     def subtree(b: int) -> tuple[int, ...]:
         return tuple(obj_of[int(c)] for c in range(m.nbody) if int(c) in obj_of and _descends(m, int(c), b))
 
-    name = lambda kind, i: mujoco.mj_id2name(m, kind, i) or f"#{i}"  # noqa: E731
     for k in range(m.nu):
         a_name = f"actuator {name(mujoco.mjtObj.mjOBJ_ACTUATOR, k)}"
         motor = (int(m.actuator_dyntype[k]) == int(mujoco.mjtDyn.mjDYN_NONE)
@@ -287,4 +342,116 @@ def motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, r
     turn = torch.linalg.cross(n.unsqueeze(2).expand_as(r), r, dim=-1)
     field_ = torch.where(hinge.view(1, -1, 1, 1), turn, n.unsqueeze(2).expand_as(r))
     acc = (qacc.view(*qacc.shape, 1, 1) * on.view(1, *on.shape, 1) * field_).sum(1)
+    return acc.to(x.dtype)
+
+
+def _rows(S: int, B: int, like: torch.Tensor, c: int, p: int, D: torch.Tensor, arm_c: torch.Tensor | None = None,
+          arm_p: torch.Tensor | None = None) -> torch.Tensor:
+    """Rows [B, k, 6 S] over the objects' stacked accelerations ``(a_s, alpha_s)`` of the relative acceleration of
+    child ``c`` against parent ``p`` (-1: the world) along the directions ``D`` [B, k, 3]: angular when ``arm_c``
+    is None, else of the point whose offsets from the mass centres are ``arm_c``, ``arm_p`` [B, 3]
+    (``d . (alpha x r) = alpha . (r x d)``)."""
+    out = like.new_zeros(B, D.shape[1], S, 6)
+    if arm_c is None:
+        out[:, :, c, 3:] = D
+        if p >= 0:
+            out[:, :, p, 3:] = -D
+    else:
+        out[:, :, c, :3] = D
+        out[:, :, c, 3:] = torch.linalg.cross(arm_c.unsqueeze(1).expand_as(D), D, dim=-1)
+        if p >= 0:
+            out[:, :, p, :3] = -D
+            out[:, :, p, 3:] = -torch.linalg.cross(arm_p.unsqueeze(1).expand_as(D), D, dim=-1)
+    return out.reshape(B, D.shape[1], 6 * S)
+
+
+def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
+                                seg: torch.Tensor, n_obj: int) -> torch.Tensor:
+    """Node accelerations [B, N, 3] (m/s^2) of the motors with every joint coupled: MuJoCo's ``M^-1 qfrc_actuator``.
+
+    Unlike :func:`motor_accelerations` (the driven joint alone, its parent held) the parent recoils and
+    the other joints pass the load on: a Cubli's cube turns against its braking flywheel, a cart's
+    pole swings as the cart is pushed. Newton-Euler in Cartesian form with the joints as constraints
+    (the same equations as MuJoCo's joint-space ``M qacc = qfrc``, as the test against ``mj_solveM``
+    shows), for the stacked accelerations ``z = (a_s, alpha_s)`` of every object's mass centre
+    ``x_s = R_s body_ipos + t_s`` and rotation::
+
+        [ M   J^T ] [ z ]   [ sum_k u_k g_k ]        M = diag(M_s I_3, I_s^w) + sum_j armature_j g_j g_j^T
+        [ J    0  ] [ l ] = [       0       ]
+
+    ``g_j`` the row of joint ``j``'s rate (hinge ``n . (alpha_c - alpha_p)``, slide ``n . (a_c(A) -
+    a_p(A))`` at the anchor ``A``), ``J`` the rows a link fixes (hinge: the anchor's relative
+    acceleration and the relative angular acceleration across ``n``; slide: the relative angular
+    acceleration and the anchor's across ``n``; ball: the anchor's; weld: all six; free: none) and the
+    world's elements held still. Velocity terms (gyroscopic, Coriolis, the joints' centripetal terms)
+    are left out, as they do not depend on the controls. Node accelerations are
+    ``a_s + alpha_s x (x_i - x_s)``. Objects named in ``drives.unlinked`` move freely; every moving
+    object needs a positive mass and inertia or a link that fixes it. Shapes as
+    :func:`motor_accelerations`; float64 inside, returned in ``x``'s dtype.
+    """
+    if not drives:
+        return torch.zeros_like(x)
+    dev, f64 = x.device, torch.float64
+    T = drives.tensors(dev)
+    xd, seg = x.to(f64), seg.to(dev)
+    R, t = kabsch(ref.to(dev, f64), xd, seg, n_obj)  # [B, S, 3, 3], [B, S, 3]
+    B, S = x.shape[0], n_obj
+    xs = (R @ T["com"].unsqueeze(-1)).squeeze(-1) + t  # mass centres [B, S, 3]
+    fixed = torch.as_tensor(drives.fixed, device=dev)
+    eye3 = torch.eye(3, dtype=f64, device=dev)
+    lin = torch.where(fixed.view(S, 1, 1), eye3, T["mass"].view(S, 1, 1) * eye3)  # [S, 3, 3]
+    ang = torch.where(fixed.view(1, S, 1, 1), eye3, R @ T["inertia"] @ R.transpose(-1, -2))  # [B, S, 3, 3]
+    blocks = xd.new_zeros(B, S, 6, 6)
+    blocks[:, :, :3, :3] = lin
+    blocks[:, :, 3:, 3:] = ang
+    M = torch.einsum("bsij,st->bsitj", blocks, torch.eye(S, dtype=f64, device=dev)).reshape(B, 6 * S, 6 * S)
+
+    def world_of(s: int, v: np.ndarray, point: bool = False) -> torch.Tensor:
+        """Vectors (points) [k, 3] given in object s's frame (-1: the world) in the world [B, k, 3]."""
+        vv = torch.as_tensor(np.atleast_2d(v), dtype=f64, device=dev).expand(B, -1, 3)
+        if s < 0:
+            return vv
+        return (R[:, s].unsqueeze(1) @ vv.unsqueeze(-1)).squeeze(-1) + (t[:, s].unsqueeze(1) if point else 0.0)
+
+    def joint_row(c: int, p: int, kind: str, n: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
+        """Row [B, 1, 6S] of the joint's rate: hinge ``n . (alpha_c - alpha_p)``, slide ``n . (a_c(A) - a_p(A))``."""
+        if kind == "hinge":
+            return _rows(S, B, xd, c, p, n)
+        return _rows(S, B, xd, c, p, n, A - xs[:, c], A - xs[:, p] if p >= 0 else None)
+
+    J = []
+    for s in torch.nonzero(fixed).flatten().tolist():  # the world's elements stay put
+        J.append(torch.eye(6 * S, dtype=f64, device=dev)[6 * s: 6 * s + 6].expand(B, 6, 6 * S))
+    world = eye3.expand(B, 3, 3)
+    rate = {}  # child object -> its joint's rate row
+    for lk in drives.links:
+        c, p = lk.child, lk.parent
+        A = world_of(p, lk.anchor, point=True)[:, 0]
+        rc, rp = A - xs[:, c], (A - xs[:, p] if p >= 0 else None)
+        if lk.kind in ("hinge", "ball", "weld"):
+            J.append(_rows(S, B, xd, c, p, world, rc, rp))
+        if lk.kind in ("slide", "weld"):
+            J.append(_rows(S, B, xd, c, p, world))
+        if lk.kind == "hinge":
+            J.append(_rows(S, B, xd, c, p, world_of(p, lk.perp)))
+        if lk.kind == "slide":
+            J.append(_rows(S, B, xd, c, p, world_of(p, lk.perp), rc, rp))
+        if lk.kind in ("hinge", "slide"):
+            rate[c] = joint_row(c, p, lk.kind, world_of(p, lk.axis), A)  # [B, 1, 6S]
+            if lk.armature > 0:
+                M = M + lk.armature * rate[c].transpose(-1, -2) @ rate[c]
+    u = _motor_forces(ctrl.to(dev, f64), T)  # [B, D]
+    F = xd.new_zeros(B, 6 * S)
+    for k, dr in enumerate(drives.drives):
+        g = rate.get(dr.child)
+        if g is None:  # a child left out of the links: its own frame
+            g = joint_row(dr.child, dr.parent, dr.kind, world_of(dr.child, dr.axis),
+                          world_of(dr.child, dr.anchor, point=True)[:, 0])
+        F = F + u[:, k: k + 1] * g[:, 0]
+    Jm = torch.cat(J, 1) if J else xd.new_zeros(B, 0, 6 * S)
+    C = Jm.shape[1]
+    K = torch.cat([torch.cat([M, Jm.transpose(-1, -2)], -1),
+                   torch.cat([Jm, xd.new_zeros(B, C, C)], -1)], 1)
+    z = torch.linalg.solve(K, torch.cat([F, xd.new_zeros(B, C)], -1))[:, :6 * S].view(B, S, 6)
+    acc = z[:, seg, :3] + torch.linalg.cross(z[:, seg, 3:], xd - xs[:, seg], dim=-1)
     return acc.to(x.dtype)

@@ -1,10 +1,12 @@
-"""Untrained MDGS (zero-initialised head) with and without the motor prior: rollout error and one-step error by body.
+"""Untrained MDGS (zero-initialised head) without the motor prior, with it, and with its coupled form: rollout and one-step error by body.
 
     python benchmarks/mdgs_probes/untrained_prior.py DATA_FOLDER [SPLIT]
 
 With ``zero_init`` the untrained model with ``actuation=none`` is the constant-twist reference
 (plus the joint projection); with ``actuation=prior`` it is constant twist plus the driven bodies'
-free response to the motors (docs/mdgs-experiments.md, "The motors' known loads"). Prints t = 40 /
+joint response to the motors, parents held (docs/mdgs-experiments.md, "The motors' known loads"); with
+``actuation=coupled`` the motors' response of the whole tree, parents recoiling (MuJoCo's
+``M^-1 qfrc_actuator``; "The whole tree's response"). Prints t = 40 /
 t = 110 position MSE (10^-3 m^2, mean over trajectories, how many reached it) and the one-step
 L_mse by body in the model's units.
 """
@@ -24,7 +26,7 @@ data = sys.argv[1]
 split = sys.argv[2] if len(sys.argv) > 2 else "test"
 tr, d = load_split(data + "/train.h5"), load_split(f"{data}/{split}.h5")
 cls = MODELS["mdgs"]
-for act in ("none", "prior"):
+for act in ("none", "prior", "coupled"):
     model = cls.from_data(tr, cls.Config(actuation=act))
     model.bind(d)
     model.eval()

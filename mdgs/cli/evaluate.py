@@ -22,9 +22,11 @@ def _parse_reference(text: str) -> tuple[str, dict]:
         return name, {"dt_factor": k}
     if name == "constant-twist" and arg:
         parts = arg.split("+")
-        if not set(parts) <= {"motors", "joints"} or len(set(parts)) != len(parts):
-            fail(f"--reference {text}: constant-twist takes motors, joints or motors+joints "
-                 f"(e.g. constant-twist:motors+joints)")
+        if not set(parts) <= {"motors", "joints", "coupled"} or len(set(parts)) != len(parts):
+            fail(f"--reference {text}: constant-twist takes motors, joints or motors+joints, and coupled "
+                 f"with motors (e.g. constant-twist:motors+joints, constant-twist:motors+coupled+joints)")
+        if "coupled" in parts and "motors" not in parts:
+            fail(f"--reference {text}: coupled is a form of the motors' response; write motors+coupled")
         return name, {k: True for k in parts}
     if arg:
         fail(f"--reference {text}: {name} takes no setting")
@@ -50,7 +52,8 @@ def evaluate_cmd(
                                         help="Also roll out a non-learned reference, e.g. mujoco:20 (MuJoCo at 20x "
                                              "the data's timestep), constant-twist:motors (constant twist plus the "
                                              "motors' known loads on the bodies they drive), constant-twist:joints "
-                                             "(projected onto the joints, as MDGS) or constant-twist:motors+joints; "
+                                             "(projected onto the joints, as MDGS), constant-twist:motors+joints, or with "
+                                             "+coupled the motors' response of the whole tree (parents recoiling); "
                                              "repeatable. constant-twist "
                                              "is always included."),
     device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),

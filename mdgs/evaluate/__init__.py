@@ -88,7 +88,9 @@ def reference_label(model: Simulator) -> str:
     if model.name == "mujoco":
         return f"mujoco dt x{model.config.dt_factor}"
     if model.name == "constant-twist":
-        return "constant twist" + "".join(f" + {k}" for k in ("motors", "joints") if getattr(model.config, k))
+        c = model.config
+        motors = " + coupled motors" if c.motors and c.coupled else " + motors" if c.motors else ""
+        return "constant twist" + motors + (" + joints" if c.joints else "")
     return model.name.replace("-", " ")
 
 

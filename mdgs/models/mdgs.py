@@ -29,7 +29,13 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 import torch
 
-from mdgs.actuation import DriveSet, actuation_forces, drives_of, motor_accelerations
+from mdgs.actuation import (
+    DriveSet,
+    actuation_forces,
+    coupled_motor_accelerations,
+    drives_of,
+    motor_accelerations,
+)
 from mdgs.data.split import SplitData
 from mdgs.graphs import (
     Propagator,
@@ -59,7 +65,7 @@ CUBLI_NOISE = 4e-4
 #: output noise on it a thousandfold. The small study's bodies all lie above it (0.097-1.4).
 OBJECT_SCALE_FLOOR = 0.05
 #: What MDGS knows of a scene's motors (``actuation``, :mod:`mdgs.actuation`).
-ACTUATION = ("none", "force", "step", "prior")
+ACTUATION = ("none", "force", "step", "prior", "coupled")
 #: Node features z_i (``features``): the paper's [x || v || k], or "local" (module docstring).
 FEATURES = ("paper", "local")
 #: The one-step loss (``loss``): Eq. (10), its Huber form, or each pair relative to doing nothing.
@@ -119,7 +125,9 @@ class MDGSConfig:
         join the force set F of Eq. 7, so the state network g and L_cst see them), "prior" (the
         velocity change over ``dt`` of each motor's joint with its parent held,
         :func:`mdgs.actuation.motor_accelerations`, is added to g's increment, so g learns only
-        what the recoil, contacts and coupling add; F as in the paper), "step" (both).
+        what the recoil, contacts and coupling add; F as in the paper), "step" (both), "coupled"
+        (as "prior" with the motors' response of the whole tree, the parents recoiling,
+        :func:`mdgs.actuation.coupled_motor_accelerations`).
     gravity_prior : add the scene's gravity over ``dt`` (``g dt``, MJCF ``opt.gravity``) to the
         velocity increment of every moving node, as ``actuation = "prior"`` adds the motors' response,
         so g learns what contacts and joints add to free fall instead of free fall itself. The
@@ -640,10 +648,11 @@ class MDGS(Simulator):
         c = self.config
         dev = x.device
         sx, sv = self.scales(scene, dev)
-        if self._drives and ctrl is not None and c.actuation in ("step", "prior"):
+        if self._drives and ctrl is not None and c.actuation in ("step", "prior", "coupled"):
             # the pose enters without gradient (its Kabsch SVD has none for symmetric bodies; only an
             # unrolled training step, whose x carries one, would differentiate it)
-            dv_act = c.dt * motor_accelerations(x.detach(), ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev),
+            response = coupled_motor_accelerations if c.actuation == "coupled" else motor_accelerations
+            dv_act = c.dt * response(x.detach(), ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev),
                                                 scene.n_obj)
             out = out + torch.cat([torch.zeros_like(dv_act), dv_act / sv], -1)
         if self._gravity is not None:  # free fall over dt on every moving node

@@ -27,7 +27,7 @@ import mujoco
 import numpy as np
 import torch
 
-from mdgs.actuation import DriveSet, drives_of, motor_accelerations
+from mdgs.actuation import DriveSet, coupled_motor_accelerations, drives_of, motor_accelerations
 from mdgs.data.split import SplitData
 from mdgs.graphs import SceneGraph
 from mdgs.joints import JointSet, joints_of, project_joints
@@ -43,17 +43,23 @@ class ConstantTwistConfig:
 
     motors : add each motor's joint response with its parent held
         (:func:`mdgs.actuation.motor_accelerations`); the label gains "+ motors".
+    coupled : with ``motors``, the motors' response with every joint coupled instead, the parents
+        recoiling (:func:`mdgs.actuation.coupled_motor_accelerations`, MuJoCo's ``M^-1 qfrc_actuator``);
+        the label gains "+ coupled motors".
     joints : project every step onto the scene's joints (:func:`mdgs.joints.project_joints`, as
         MDGS's ``joints``); the label gains "+ joints".
     """
 
     motors: bool = False
     joints: bool = False
+    coupled: bool = False
 
     def __post_init__(self):
-        for k in ("motors", "joints"):
+        for k in ("motors", "joints", "coupled"):
             if not isinstance(getattr(self, k), bool):
                 raise ValueError(f"{k} must be true or false, got {getattr(self, k)!r}")
+        if self.coupled and not self.motors:
+            raise ValueError("coupled is a form of the motors' response; set motors = true with it")
 
 
 class ConstantTwist(Simulator):
@@ -81,7 +87,8 @@ class ConstantTwist(Simulator):
         tw = twist(x, v, seg, sc.n_obj, mass)
         vc, w = tw.vc, tw.omega
         if self._drives:  # + the motors' joint response (parents held) over the frame
-            acc = motor_accelerations(x, ctrl, self._drives, sc.ref_shape.to(x.device), seg, sc.n_obj)
+            response = coupled_motor_accelerations if self.config.coupled else motor_accelerations
+            acc = response(x, ctrl, self._drives, sc.ref_shape.to(x.device), seg, sc.n_obj)
             dvc, dw = project(acc * self._dt, x, tw, seg, sc.n_obj, mass)
             vc, w = vc + dvc, w + dw
         xn, vn = advance(x, tw, vc, w, self._dt, seg)
