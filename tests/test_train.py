@@ -20,6 +20,7 @@ from mdgs.graphs import SceneGraph
 from mdgs.models import MODELS
 from mdgs.models.base import batch_of
 from mdgs.models.mdgs import ModelConfig, noise_sigmas
+from mdgs.partition import PartitionParams
 from mdgs.train import TrainConfig, train
 
 runner = CliRunner()
@@ -405,6 +406,13 @@ def test_mismatched_checkpoint_exits_2(data, run, tmp_path):
     generate(GenerateConfig(scene="cubli-single", out=str(other), preset="tiny"))
     res = runner.invoke(app, ["evaluate", str(run), "--data", str(other)])
     assert res.exit_code == 2 and "was trained on scene 'cubli-triple'" in res.output, res.output
+    # the same scene partitioned twice as finely: a different graph, refused rather than evaluated
+    finer = tmp_path / "finer"
+    generate(GenerateConfig(scene="cubli-triple", out=str(finer), preset="tiny", partition=PartitionParams(refine=2)))
+    res = runner.invoke(app, ["evaluate", str(run), "--data", str(finer)])
+    assert res.exit_code == 2 and "partitions it into" in res.output and "--refine" in res.output, res.output
+    res = runner.invoke(app, ["train", "--data", str(finer), "--out", str(run), "--epochs", "9", "--max-steps", "1"])
+    assert res.exit_code == 2 and "another --refine" in res.output and "Traceback" not in res.output, res.output
 
 
 @pytest.mark.parametrize("bad", ["missing", "corrupt", "nan"])

@@ -30,6 +30,10 @@ def _check_identity(run, d: SplitData, want: dict) -> bool:
     """True if ``d`` is a test variant of the run's scene; RunError if it is another scene."""
     ident = d.identity()
     if ident["mjcf_sha256"] == want["mjcf_sha256"]:
+        if ident["n_nodes"] != want["n_nodes"]:  # the same scene partitioned otherwise (`mdgs generate --refine`)
+            raise RunError(f"{run} was trained on scene {want['scene']!r} partitioned into {want['n_nodes']} nodes "
+                           f"but {d.path} partitions it into {ident['n_nodes']}; evaluate it on data generated "
+                           f"with the partition it was trained on (the same --refine)")
         return False
     from mdgs.scenes import SCENES
 

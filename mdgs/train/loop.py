@@ -269,6 +269,10 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
         if state["data_identity"]["mjcf_sha256"] != tr.identity()["mjcf_sha256"]:
             raise RunError(f"{out} holds a run trained on scene {state['data_identity']['scene']!r}, not on "
                            f"{tr.identity()['scene']!r} from {cfg.data}; choose another --out or delete {ckpt_path}")
+        if state["data_identity"]["n_nodes"] != tr.identity()["n_nodes"]:
+            raise RunError(f"{out} holds a run trained on the scene partitioned into {state['data_identity']['n_nodes']} "
+                           f"nodes, but {cfg.data} partitions it into {tr.identity()['n_nodes']} (another --refine); "
+                           f"choose another --out or delete {ckpt_path}")
         old = {"select": "last", **_with_absent(state["train_fingerprint"], cls.Config)}  # runs before select: last
         if old != fp:
             diff = sorted(k for k in fp if old.get(k) != fp[k])
