@@ -1,4 +1,4 @@
-"""The motors' known loads: as node forces on free bodies, and as the joint's response with its parent held.
+"""The motors' known loads: as node forces on free bodies, as the joint's response with its parent held, and as the whole tree's response.
 
 MDGS's inputs carry a scene's actuator controls as per-node signs (``+ctrl_k`` on the body that
 actuator ``k`` drives, ``-ctrl_k`` on its parent; :func:`mdgs.data.split.control_map`): the
@@ -33,10 +33,16 @@ mass centre, ``R_b body_ipos + t_b``) or ``sum_{b in S} M_b + armature`` (slide)
 
 summed over the motors. It is MuJoCo's ``qacc = M^-1 qfrc_actuator`` when the parent is fixed and
 the motor's degree of freedom is the only one (a wheel on a fixed axle, an arm on a fixed
-hinge); otherwise an approximation that ignores the parent's recoil (small when the parent is
-much heavier than the subtree, as a Cubli's cube is beside its flywheel) and the coupling with
-other joints. Neither form has the velocity terms (gyroscopic, Coriolis), which do not depend on
-the control. Actuators that are not motors (position or velocity servos, activation dynamics),
+hinge); otherwise an approximation that ignores the parent's recoil and the coupling with other
+joints (in one random pose of a free-floating Cubli, its largest node error is 21 m/s^2 against node
+accelerations up to 105: the cube's turn against its wheel).
+
+**The whole tree's response** (:func:`coupled_motor_accelerations`): MuJoCo's ``M^-1 qfrc_actuator``
+exactly, every parent recoiling and every joint passing the load on (Newton-Euler with the joints as
+constraints; its docstring). Exact for the motors alone, it is the worse prior where floors and gravity
+hold the parents (docs/mdgs-experiments.md, "The whole tree's response").
+
+No form has the velocity terms (gyroscopic, Coriolis), which do not depend on the control. Actuators that are not motors (position or velocity servos, activation dynamics),
 that drive a tendon, a site or a ball or free joint, or whose body's rotation its elements do
 not fix, are listed in ``skipped`` and contribute nothing; bodies without elements are left out
 of the sums. Everything runs in float64; shapes ``[B, N, 3]``.
