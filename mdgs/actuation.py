@@ -42,7 +42,8 @@ exactly, every parent recoiling and every joint passing the load on (Newton-Eule
 constraints; its docstring). Exact for the motors alone, it is the worse prior where floors and gravity
 hold the parents (docs/mdgs-experiments.md, "The whole tree's response").
 
-No form has the velocity terms (gyroscopic, Coriolis), which do not depend on the control. Actuators that are not motors (position or velocity servos, activation dynamics),
+No form has the velocity terms (gyroscopic, Coriolis), which do not depend on the control.
+Actuators that are not motors (position or velocity servos, activation dynamics),
 that drive a tendon, a site or a ball or free joint, or whose body's rotation its elements do
 not fix, are listed in ``skipped`` and contribute nothing; bodies without elements are left out
 of the sums. Everything runs in float64; shapes ``[B, N, 3]``.
