@@ -34,8 +34,8 @@ mass centre, ``R_b body_ipos + t_b``) or ``sum_{b in S} M_b + armature`` (slide)
 summed over the motors. It is MuJoCo's ``qacc = M^-1 qfrc_actuator`` when the parent is fixed and
 the motor's degree of freedom is the only one (a wheel on a fixed axle, an arm on a fixed
 hinge); otherwise an approximation that ignores the parent's recoil and the coupling with other
-joints (in one random pose of a free-floating Cubli, its largest node error is 21 m/s^2 against node
-accelerations up to 105: the cube's turn against its wheel).
+joints (for a driven tree on a floating base it misses a sizeable part of MuJoCo's node accelerations,
+the base's turn against its wheel: tests/test_actuation.py).
 
 **The whole tree's response** (:func:`coupled_motor_accelerations`): MuJoCo's ``M^-1 qfrc_actuator``
 exactly, every parent recoiling and every joint passing the load on (Newton-Euler with the joints as

@@ -643,7 +643,7 @@ class MDGS(Simulator):
 
     def _integrate(self, scene: SceneGraph, x, v, out, ctrl) -> tuple:
         """``x', v'`` [B, N, 3] from g's output ``out`` [B, N, 6]: plus the motors' joint response over ``dt``
-        (``actuation`` prior or step), through the integrator, then the structural constraint module; and
+        (``actuation`` prior, coupled or step), through the integrator, then the structural constraint module; and
         the objects' placement ``(R, t)`` that module fitted (None without it)."""
         c = self.config
         dev = x.device

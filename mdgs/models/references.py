@@ -86,7 +86,7 @@ class ConstantTwist(Simulator):
         seg, mass = sc.obj.to(x.device), sc.mass.to(x.device)
         tw = twist(x, v, seg, sc.n_obj, mass)
         vc, w = tw.vc, tw.omega
-        if self._drives:  # + the motors' joint response (parents held) over the frame
+        if self._drives:  # + the motors' response (parents held, or the whole tree's) over the frame
             response = coupled_motor_accelerations if self.config.coupled else motor_accelerations
             acc = response(x, ctrl, self._drives, sc.ref_shape.to(x.device), seg, sc.n_obj)
             dvc, dw = project(acc * self._dt, x, tw, seg, sc.n_obj, mass)
