@@ -671,3 +671,40 @@ def test_resolution_cells_refine_a_named_row_with_its_settings_and_report_its_st
     t = _resolution_table(lines)
     assert [(r[1], r[-1]) for r in t.rows] == [("1", "1/2"), ("2", "2/2")]  # plain mdgs is not the base row
     assert _styles(lines)["mdgs + motor prior refine 2"]["ls"] == "-"  # the charts draw resolution rows in colour
+
+
+def test_finer_partitions_get_their_own_references_and_the_resolution_ratio_uses_them(tmp_path):
+    """Position MSE averages over element centroids, so a refine-2 row is divided by the constant-twist
+    reference on refine-2 nodes: the study adds every reference at each [resolution] refinement (cells
+    of refine 2, labels ending in " refine 2", default cells' keys unchanged), the Resolution table's
+    ratio uses the reference of the row's own partition, and the paper tables leave the refined
+    references out."""
+    from mdgs.study.tables import _reference_order, _resolution_table, build_tables
+
+    text = GOOD + "[references]\nmotors = true\nmujoco_dt_factors = [10]\n"
+    plain = load_study(_write(tmp_path, text))
+    study = load_study(_write(tmp_path, text + '[resolution]\nmodel = "mdgs"\nrefine = [2]\n'))
+    assert {c.key(plain) for c in cells_of(plain)} <= {c.key(study) for c in cells_of(study)}
+    refined = [(c.kind, c.label, c.refine) for c in cells_of(study) if c.refine == 2]
+    assert refined == [("resolution", "mdgs refine 2", 2), ("reference", "constant twist refine 2", 2),
+                       ("reference", "constant twist + motors refine 2", 2), ("reference", "mujoco dt x10 refine 2", 2)]
+    keys = [c.key(plain) for c in cells_of(plain)]  # appended last: earlier cells keep their index (their share)
+    assert [c.key(study) for c in cells_of(study)][:len(keys)] == keys
+    assert sorted(["mujoco dt x10 refine 2", "constant twist refine 2", "mujoco dt x2", "constant twist"],
+                  key=_reference_order) == ["constant twist", "mujoco dt x2", "constant twist refine 2",
+                                            "mujoco dt x10 refine 2"]
+
+    def line(kind, model, label, refine, v):
+        ln = _line(kind, model, label, 0, [v, v], [2 * v, 2 * v], 0.5)
+        ln.update(refine=refine, parameters=10, train={})
+        ln["cost"]["batched"] = {"ms_per_trajectory_frame": 0.1, "batch": 2}
+        return ln
+    lines = [line("reference", "constant-twist", "constant twist", 1, 4.0),
+             line("reference", "constant-twist", "constant twist refine 2", 2, 8.0),
+             line("learned", "mdgs", "mdgs", 1, 2.0), line("resolution", "mdgs", "mdgs refine 2", 2, 2.0)]
+    t = _resolution_table(lines)
+    col = t.header.index("x constant twist, same partition, t=40")
+    assert [(r[1], r[col]) for r in t.rows] == [("1", "0.5"), ("2", "0.25")]  # 2 / 4 and 2 / 8, not 2 / 4 twice
+    table1 = next(t for t in build_tables(lines) if t.title == "Other scenes")
+    assert [r[0] for r in table1.rows] == ["mdgs", "constant twist (reference)"]
+    assert _resolution_table(lines[:1] + lines[2:]).rows[1][col] == "-"  # no refine-2 reference yet: no ratio

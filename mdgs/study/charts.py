@@ -9,7 +9,9 @@
 - ``stability.png``: per scene, the fraction of long test trajectories still within the failure
   threshold against the rollout length, then the energy error and the joint separation of the
   surviving trajectories (means over seeds).
-- ``resolution.png``: MDGS error at t = 40 and cost against the element resolution.
+- ``resolution.png``: MDGS error at t = 40 and cost against the element resolution, beside the
+  constant-twist reference on each partition (dashed): errors average over element centroids, so
+  the partition alone moves them.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from mdgs.runs import atomic_savefig
-from mdgs.study.tables import _pareto, _points, _resolution_base, _run_mean, _scenes
+from mdgs.study.tables import _pareto, _points, _resolution_base, _run_mean, _scenes, default_partition
 
 __all__ = ["draw_charts"]
 
@@ -240,6 +242,7 @@ def resolution(lines, path: Path) -> bool:
     base = _resolution_base(res)
     use = res + [ln for ln in lines if ln["kind"] == "learned" and ln["label"] == base]
     use = [ln for ln in use if ln.get("status", "ok") == "ok"]
+    refs = [ln for ln in lines if ln["kind"] == "reference" and ln.get("status", "ok") == "ok"]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
     for k, scene in enumerate(_scenes(use)):
         by = {}
@@ -251,6 +254,12 @@ def resolution(lines, path: Path) -> bool:
         cost = [np.mean([ln["cost"]["single"]["ms_per_frame"] for ln in by[r]]) for r in rs]
         axes[0].plot(rs, err, "-o", color=f"C{k}", label=scene)
         axes[1].plot(rs, cost, "-o", color=f"C{k}", label=scene)
+        ct = {ln.get("refine", 1): _run_mean(ln, "test", 40)[0] for ln in refs
+              if ln["scene"] == scene and ln["model"] == "constant-twist" and not ln.get("settings")}
+        ct = sorted((r, e) for r, e in ct.items() if e is not None)
+        if ct:  # the same trajectories' constant twist on each partition: what the partition alone does
+            axes[0].plot([r for r, _ in ct], [e for _, e in ct], "--s", color=f"C{k}", ms=4, lw=1,
+                         label=f"{scene}: constant twist")
     fig.suptitle(f"{base}: error and cost against the element partition", fontsize=10)
     axes[0].set_ylabel("position MSE at t = 40 (m$^2$)")
     axes[1].set_ylabel("ms per frame, 1 trajectory")
@@ -268,11 +277,12 @@ def draw_charts(lines: list[dict], out: Path) -> list[str]:
     """Draw every chart the results support into ``out``; returns the file names written."""
     out = Path(out)
     files = []
+    every, lines = lines, default_partition(lines)
     if any(ln["kind"] in ("learned", "reference") for ln in lines):
         speed_accuracy(lines, out / "speed_accuracy.png")
         files += ["speed_accuracy.png", "speed_accuracy.svg"]
     if stability(lines, out / "stability.png"):
         files.append("stability.png")
-    if resolution(lines, out / "resolution.png"):
+    if resolution(every, out / "resolution.png"):
         files.append("resolution.png")
     return files

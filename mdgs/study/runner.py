@@ -102,16 +102,7 @@ def cells_of(study: StudyConfig) -> list[Cell]:
     stopped early has complete rows (every seed) for the models it reached."""
     out = []
     for sc in study.scenes:
-        out.append(Cell("reference", sc, "constant-twist", "constant twist"))
-        if study.motor_twist:
-            out.append(Cell("reference", sc, "constant-twist", "constant twist + motors", (("motors", True),)))
-        if study.joint_twist:
-            out.append(Cell("reference", sc, "constant-twist", "constant twist + joints", (("joints", True),)))
-            if study.motor_twist:
-                out.append(Cell("reference", sc, "constant-twist", "constant twist + motors + joints",
-                                (("joints", True), ("motors", True))))
-        for k in study.mujoco_dt_factors:
-            out.append(Cell("reference", sc, "mujoco", f"mujoco dt x{k}", (("dt_factor", k),)))
+        out += _reference_cells(study, sc)
         if study.sensitivity > 0:
             for s in study.sensitivity_seeds:
                 out.append(Cell("sensitivity", sc, "mujoco", "sensitivity floor",
@@ -125,7 +116,29 @@ def cells_of(study: StudyConfig) -> list[Cell]:
             for sc in study.scenes:
                 out.append(Cell("resolution", sc, study.resolution_model, f"{study.resolution_label} refine {r}",
                                 study.resolution_settings, seed, r))
+    # the references on each finer partition's own nodes (errors of two partitions differ), last: a
+    # study that had run before they existed keeps every earlier cell at its index, so in its share
+    for r in study.resolution_refine:
+        for sc in study.scenes:
+            out += _reference_cells(study, sc, r)
     return out
+
+
+def _reference_cells(study: StudyConfig, sc: SceneEntry, refine: int = 1) -> list[Cell]:
+    """The study's non-learned references on one scene partitioned ``refine`` times finer: constant
+    twist (with the motor and joint variants the study asks for) and MuJoCo at each timestep factor.
+    Position MSE averages over element centroids, so a finer partition's rows are compared with the
+    references on its own nodes (labels end in ``" refine 2"`` etc.; refine 1 keeps the plain labels)."""
+    tail = "" if refine == 1 else f" refine {refine}"
+    specs = [("constant-twist", "constant twist", ())]
+    if study.motor_twist:
+        specs.append(("constant-twist", "constant twist + motors", (("motors", True),)))
+    if study.joint_twist:
+        specs.append(("constant-twist", "constant twist + joints", (("joints", True),)))
+        if study.motor_twist:
+            specs.append(("constant-twist", "constant twist + motors + joints", (("joints", True), ("motors", True))))
+    specs += [("mujoco", f"mujoco dt x{k}", (("dt_factor", k),)) for k in study.mujoco_dt_factors]
+    return [Cell("reference", sc, model, label + tail, settings, refine=refine) for model, label, settings in specs]
 
 
 # --------------------------------------------------------------------------- data
@@ -293,7 +306,7 @@ def _run_cell(study: StudyConfig, out: Path, cell: Cell, progress, t0: float, wa
     anchors = hinge_anchors(test.mj_model())
     progress({"kind": "evaluate", "set": "test"})
     sets = {"test": _evaluate_set(model, test, dev, study.failure_factor, anchors, False)}
-    if cell.kind in ("learned", "reference"):
+    if cell.kind in ("learned", "reference") and cell.refine == 1:  # the variants exist on the default partition
         for v in cell.scene.variants:
             vd = load_split(_dataset(study, out, cell.scene, variant=v) / "test.h5")
             progress({"kind": "evaluate", "set": v})
