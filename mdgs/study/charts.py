@@ -22,7 +22,14 @@ from pathlib import Path
 import numpy as np
 
 from mdgs.runs import atomic_savefig
-from mdgs.study.tables import _pareto, _points, _resolution_base, _run_mean, _scenes, default_partition
+from mdgs.study.tables import (
+    _pareto,
+    _points,
+    _resolution_base,
+    _run_mean,
+    _scenes,
+    default_partition,
+)
 
 __all__ = ["draw_charts"]
 
