@@ -1,7 +1,7 @@
 """Every model of the registry side by side on one scene: size, training step, rollout step, FLOP rate.
 
     python benchmarks/bench_models.py [--scene cubli-triple] [--models mdgs gns ...] [--batches 1 16 256]
-                                      [--widths 100 50] [--compile [inductor] [aot]]
+                                      [--widths 100 50] [--compile [inductor] [aot]] [--device cuda]
 
 One run, this machine, medians over repeats; printed per model:
 
@@ -18,12 +18,16 @@ One run, this machine, medians over repeats; printed per model:
 
 With ``--compile`` every torch model is measured a second time with its step compiled
 (:func:`mdgs.models.compile_step`; ``--compile aot`` ahead of time with AOTInductor, ``--compile
-inductor aot`` both), printed as ``NAME compiled`` (``NAME aot``) with the seconds its first steps
+inductor aot`` both, ``cudagraphs`` replayed as CUDA graphs on a GPU), printed as ``NAME compiled`` (``NAME aot``) with the seconds its first steps
 spent compiling, and its rollout of the test trajectories is compared with the eager one (largest
 position difference).
 
 The data is a ``tiny`` dataset of the scene written to a temporary folder. Untrained weights:
 the cost of a step does not depend on training.
+
+``--device cuda`` runs every torch model on the GPU (MuJoCo stays on the CPU, where it runs);
+the dense-matmul rate is then measured on the GPU with a taller matrix (2^20 rows: the 8192-row
+product is launch-bound there), in float32 without TF32, the precision the models run in.
 """
 
 from __future__ import annotations
@@ -66,11 +70,13 @@ def tiny_splits(scene: str) -> tuple[SplitData, SplitData]:
         return load_split(Path(tmp) / "train.h5"), load_split(Path(tmp) / "test.h5")
 
 
-def registry_models(names: list[str], tr: SplitData, widths: tuple[int, ...] = ()) -> Iterator[tuple[str, Simulator | str]]:
+def registry_models(names: list[str], tr: SplitData, widths: tuple[int, ...] = (),
+                    device: torch.device | None = None) -> Iterator[tuple[str, Simulator | str]]:
     """``(label, model)`` for each registry name, built from ``tr`` with default settings (untrained);
     MuJoCo twice: at the data's timestep and at one step per frame; MDGS also at each of ``widths``
-    (GCN hidden and global width). A model that refuses the scene gives its message (a str) in place
-    of the model, so a table can say so and go on."""
+    (GCN hidden and global width). Torch models are moved to ``device`` (MuJoCo stays on the CPU).
+    A model that refuses the scene gives its message (a str) in place of the model, so a table can
+    say so and go on."""
     for name in names:
         cls = MODELS[name]
         cfgs = [("", {})] if name != "mujoco" else [(" dt x1", {"dt_factor": 1}),
@@ -80,14 +86,23 @@ def registry_models(names: list[str], tr: SplitData, widths: tuple[int, ...] = (
             cfgs += [(f" hidden {w}", {"hidden": w, "global_dim": w}) for w in widths]
         for suffix, kw in cfgs:
             try:
-                yield name + suffix, cls.from_data(tr, cls.Config(**kw))
+                model = cls.from_data(tr, cls.Config(**kw))
+                yield name + suffix, model.to(device) if device is not None and model.compilable else model
             except Exception as e:  # noqa: BLE001 - a model that refuses the scene says so and the table goes on
                 yield name + suffix, str(e)
 
 
-def _matmul_rate(repeats: int = 20) -> float:
-    a, b = torch.randn(8192, 200), torch.randn(200, 200)
-    return 2.0 * 8192 * 200 * 200 / median_time(lambda: a @ b, repeats)
+def _matmul_rate(device: torch.device, repeats: int = 20) -> tuple[float, int]:
+    """FLOP/s of a dense float32 ``[rows x 200] @ [200 x 200]`` on ``device`` and its rows (8192 on a
+    CPU; 2^20 on a GPU, where the smaller product is launch-bound)."""
+    rows = 8192 if device.type == "cpu" else 1 << 20
+    a, b = torch.randn(rows, 200, device=device), torch.randn(200, 200, device=device)
+
+    def mm():
+        a @ b
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+    return 2.0 * rows * 200 * 200 / median_time(mm, repeats), rows
 
 
 def _compiled_line(label: str, model: Simulator, te: SplitData, args, mode: str = "inductor") -> str:
@@ -97,8 +112,8 @@ def _compiled_line(label: str, model: Simulator, te: SplitData, args, mode: str 
     eager = rollout(model, te, model.device)
     name = label + (" compiled" if mode == "inductor" else f" {mode}")
     t0 = time.perf_counter()
-    compile_step(model, mode)
     try:
+        compile_step(model, mode)
         for b in args.batches:  # compile each batch shape once, outside the timed repeats
             step_cost(model, te, batch=b, frames=2, repeats=1)
         compiled = rollout(model, te, model.device)
@@ -120,22 +135,27 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=10, help="timed frames per rollout measurement")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--device", default="cpu", help="cpu or cuda: where the torch models run (MuJoCo: the CPU)")
     ap.add_argument("--widths", nargs="*", type=int, default=[],
                     help="also MDGS at these GCN widths (hidden = global_dim; the default is 200)")
     ap.add_argument("--compile", nargs="*", choices=COMPILE_MODES, default=None,
-                    help="also every torch model with its step compiled: torch.compile (inductor, the default) "
-                         "and/or ahead of time (aot)")
+                    help="also every torch model with its step compiled: torch.compile (inductor, the default), "
+                         "ahead of time (aot) and/or CUDA graphs (cudagraphs, --device cuda only)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
+    dev = torch.device(args.device)
+    if dev.type == "cuda":
+        torch.backends.cuda.matmul.allow_tf32 = False  # the models' float32, as on the CPU
     names = args.models or list(MODELS)
     tr, te = tiny_splits(args.scene)
-    rate = _matmul_rate()
+    rate, rows = _matmul_rate(dev)
+    where = torch.cuda.get_device_name(dev) if dev.type == "cuda" else "CPU"
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, frame {tr.frame_dt * 1e3:.0f} ms, torch threads "
-          f"{args.threads}; dense matmul [8192x200]@[200x200] {rate / 1e9:.1f} GFLOP/s")
+          f"{args.threads}, torch models on {where}; dense matmul [{rows}x200]@[200x200] {rate / 1e9:.1f} GFLOP/s")
     head = f"{'model':22s}{'params':>10s}{'train ms':>10s}" + "".join(f"{'ms/tf b' + str(b):>12s}" for b in args.batches)
     print(head + f"{'% matmul':>10s}{'floor ms/tf':>13s}")
     rows = []
-    for label, model in registry_models(names, tr, tuple(args.widths)):
+    for label, model in registry_models(names, tr, tuple(args.widths), dev):
         if isinstance(model, str):
             print(f"{label:22s} refused: {model}")
             continue
@@ -145,7 +165,7 @@ def main() -> None:
             opt, _, _ = model.optimizer(cls.default_lr)
             pairs = tr.pairs(model.history)
             idx = pairs[np.linspace(0, len(pairs) - 1, args.train_batch).astype(int)]
-            gen = torch.Generator().manual_seed(0)
+            gen = torch.Generator(device=model.device).manual_seed(0)
 
             def train_step(model=model, opt=opt, idx=idx, gen=gen):
                 b = model.perturb(batch_of(tr, idx, model.device, model.history), gen)
@@ -153,6 +173,8 @@ def main() -> None:
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
+                if model.device.type == "cuda":
+                    torch.cuda.synchronize()
             model.train()
             train_ms = f"{1e3 * median_time(train_step, args.repeats, 1):.1f}"
         costs = [step_cost(model, te, batch=b, frames=args.frames, repeats=args.repeats) for b in args.batches]
@@ -174,7 +196,7 @@ def main() -> None:
         if args.compile is not None and model.compilable:
             for mode in args.compile or ["inductor"]:
                 print(_compiled_line(label, model, te, args, mode), flush=True)
-                del model.step  # back to the class's eager step for the next mode
+                vars(model).pop("step", None)  # back to the class's eager step for the next mode
     print("ms/tf bN: milliseconds per trajectory-frame of a rollout step at batch N (batch 1: one trajectory); "
           "% matmul: FLOP rate of the largest batch against the dense matmul above; floor ms/tf: the step's "
           "FLOPs per trajectory at that dense matmul rate, the least a step could cost on this thread"

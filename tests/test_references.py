@@ -137,6 +137,21 @@ def test_ahead_of_time_compiled_mdgs_rolls_out_as_the_eager_step_and_reuses_its_
         compile_step(model, "jit")
 
 
+def test_cuda_graphs_are_refused_on_the_cpu_and_the_cost_falls_back_to_inductor(test_split):
+    """``compile_step(model, "cudagraphs")`` needs a CUDA device: on the CPU one ModelError naming the
+    device and the other modes; ``compiled_cost`` then times the next mode that works and says why."""
+    from mdgs.evaluate.cost import compiled_cost
+    from mdgs.models import compile_step
+
+    ref = MODELS["constant-twist"].from_data(test_split)
+    with pytest.raises(ModelError, match="replays CUDA graphs.*is on cpu.*'inductor' or 'aot'"):
+        compile_step(ref, "cudagraphs")
+    assert "step" not in vars(ref)  # refused before anything was swapped in
+    out = compiled_cost(ref, test_split, "cudagraphs", batched=2)
+    assert (out["requested"], out["compiled"]) == ("cudagraphs", "inductor")
+    assert out["note"].startswith("cudagraphs: ModelError") and out["single"]["ms_per_frame"] > 0
+
+
 def test_compiled_cost_falls_back_mode_by_mode_and_says_why(test_split, monkeypatch):
     """``compiled_cost``: a step that compiles neither ahead of time nor by torch.compile is timed eagerly and
     the result names both refusals; MuJoCo (C code) is timed as it is; and the ahead-of-time step it

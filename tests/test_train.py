@@ -335,7 +335,7 @@ def test_evaluate_with_the_ahead_of_time_step_reports_the_eager_rollout(data, ru
     np.testing.assert_allclose(curves[1], curves[0], rtol=1e-5, atol=1e-12)
     assert np.isfinite(curves[0][:5]).all()  # some frames to compare (the tiny overfit run may diverge later)
     res = runner.invoke(app, ["evaluate", str(run), "--data", str(data), "--compile", "jit"])
-    assert res.exit_code == 2 and "--compile jit is not one of none, inductor, aot" in res.output
+    assert res.exit_code == 2 and "--compile jit is not one of none, inductor, aot, cudagraphs" in res.output
 
 
 def test_constant_twist_reference_keeps_each_body_twist_and_shape(data):

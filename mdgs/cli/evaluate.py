@@ -57,9 +57,10 @@ def evaluate_cmd(
                                              "repeatable. constant-twist "
                                              "is always included."),
     device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),
-    compile_mode: str = typer.Option("none", "--compile", help="The runs' step: none (eager), inductor (torch.compile) "
-                                "or aot (compiled ahead of time; fastest for one trajectory, about a minute "
-                                "to compile); ms_per_frame then times the compiled step."),
+    compile_mode: str = typer.Option("none", "--compile", help="The runs' step: none (eager), inductor (torch.compile), "
+                                "aot (compiled ahead of time; fastest for one trajectory on a CPU, about a minute "
+                                "to compile) or cudagraphs (CUDA only: inductor's kernels replayed as one CUDA "
+                                "graph); ms_per_frame then times the compiled step."),
     list_models: bool = typer.Option(False, "--list-models", help="List the models of the registry and exit."),
 ) -> None:
     """Roll out whole test trajectories; rollout MSE at t=40 and t=110 (m^2), curves and plots."""

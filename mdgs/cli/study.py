@@ -45,8 +45,9 @@ def study_cmd(
         return
     if study_file is None or out is None:
         fail("give a study file and --out DIR (or --report DIR to redraw the tables and charts)")
-    if recost is not None and recost not in ("aot", "inductor", "none"):
-        fail(f"--recost {recost!r}: give aot (ahead of time, AOTInductor), inductor (torch.compile) or none (eager)")
+    if recost is not None and recost not in ("aot", "inductor", "cudagraphs", "none"):
+        fail(f"--recost {recost!r}: give aot (ahead of time, AOTInductor), inductor (torch.compile), cudagraphs "
+             "(CUDA graphs of inductor's kernels; a study on a CUDA device) or none (eager)")
     if recost is not None and (cells != "0/1" or only):
         fail("--recost times every row one after another (so all are timed alike) and skips the rows "
              "already timed; leave out --cells and --only")

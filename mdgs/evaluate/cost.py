@@ -65,18 +65,19 @@ def step_cost(model: Simulator, d: SplitData, batch: int = 1, frames: int = 20, 
 
 def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batched: int = 0) -> dict:
     """:func:`step_cost` of ``model`` at one trajectory and at a batch of ``batched`` trajectories of ``d``
-    (0: all of them), with its step compiled by ``mode`` ("none": the eager step; "inductor", "aot": as
-    :func:`mdgs.models.compile_step`).
+    (0: all of them), with its step compiled by ``mode`` ("none": the eager step; "inductor", "aot",
+    "cudagraphs": as :func:`mdgs.models.compile_step`).
 
-    A model that does not compile in ``mode`` is measured in the next mode that works (aot ->
-    inductor -> none), and the result says so: ``{"requested", "compiled", "note", "compile_seconds",
+    A model that does not compile in ``mode`` is measured in the next mode that works (aot or
+    cudagraphs -> inductor -> none), and the result says so: ``{"requested", "compiled", "note", "compile_seconds",
     "single", "batched"}``, ``compiled`` the mode that ran, ``note`` why it is not ``requested`` ("" if
     it is). A model that is not torch code (``compilable`` false: MuJoCo) runs as it is, ``compiled``
     "none". Each batch shape is compiled (and its first step run) before its timed repeats, so
     ``compile_seconds`` holds the compiling and no timing does; a step that compiles again after that
     (its shapes follow the state) is timed eagerly instead. ``model`` keeps the step timed.
     """
-    modes = {"aot": ["aot", "inductor", "none"], "inductor": ["inductor", "none"], "none": ["none"]}
+    modes = {"aot": ["aot", "inductor", "none"], "inductor": ["inductor", "none"], "none": ["none"],
+             "cudagraphs": ["cudagraphs", "inductor", "none"]}
     if mode not in modes:
         raise ValueError(f"compile mode {mode!r} is not one of {', '.join(modes)}")
     sizes = [1, batched or d.x.shape[0]]
@@ -95,7 +96,7 @@ def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batched: in
                 for b in sizes:  # compile each batch shape (two steps: the first of a binding runs eagerly)
                     step_cost(model, d, batch=b, frames=2, repeats=1)
             t_compile += time.perf_counter() - t0
-            if m == "inductor":
+            if m in ("inductor", "cudagraphs"):
                 _refuse_recompiles(model)
             out = {"compiled": m, "single": step_cost(model, d, batch=sizes[0]),
                    "batched": step_cost(model, d, batch=sizes[1])}

@@ -222,8 +222,8 @@ class Simulator(nn.Module):
         return sum(p.numel() for p in self.parameters())
 
 
-#: What :func:`compile_step` can compile a step with.
-COMPILE_MODES = ("inductor", "aot")
+#: What :func:`compile_step` can compile a step with ("cudagraphs": CUDA devices only).
+COMPILE_MODES = ("inductor", "aot", "cudagraphs")
 
 
 @torch.no_grad()
@@ -246,7 +246,13 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
     ``--compile aot``). Inference only (no gradient); the weights and the bound scene are compiled
     in: a package is reused for the same scene (by its static arrays) and batch shape, a new scene
     compiles its own, and weights changed after compiling are not seen (compile after training). A step that does not export
-    raises :class:`ModelError` naming ``inductor``."""
+    raises :class:`ModelError` naming ``inductor``.
+
+    ``mode="cudagraphs"`` (CUDA only; ``torch.compile`` with ``mode="reduce-overhead"``): inductor's
+    kernels recorded once per batch shape into a CUDA graph and replayed, so a step costs one graph
+    launch instead of one launch per kernel, which is what a small scene's step costs on a GPU. The
+    replay writes into the same output buffers every step, so the step returns copies. A model on
+    the CPU raises :class:`ModelError`."""
     if not isinstance(model, Simulator):
         raise TypeError(f"compile_step takes a Simulator, not {type(model).__name__}")
     if mode not in COMPILE_MODES:
@@ -255,11 +261,23 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
     # every instance: each compiled model adds one per batch shape, and past the limit (8 by default)
     # dynamo would silently run the step eagerly
     torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, 64)
+    if mode == "cudagraphs" and model.device.type != "cuda":
+        raise ModelError(f"compile mode 'cudagraphs' replays CUDA graphs, and {model.name!r} is on {model.device}: "
+                         "move it to a CUDA device (--device cuda) or use 'inductor' or 'aot'")
     eager = type(model).step.__get__(model)
     # cpp_wrapper: the compiled graph's kernels are launched from generated C++ rather than Python,
     # which is most of the per-step overhead left on a CPU (0.57 -> 0.43 ms per frame for MDGS at
     # hidden width 100, one trajectory, benchmarks/bench_models.py)
-    compiled = torch.compile(eager, dynamic=False, options={"cpp_wrapper": True}) if mode == "inductor" else None
+    compiled = None
+    if mode == "inductor":
+        compiled = torch.compile(eager, dynamic=False, options={"cpp_wrapper": True})
+    elif mode == "cudagraphs":
+        graphed = torch.compile(eager, dynamic=False, mode="reduce-overhead")
+
+        def compiled(state: State, ctrl: torch.Tensor) -> State:
+            torch.compiler.cudagraph_mark_step_begin()  # each call is a new replay: earlier outputs may be reused
+            out = graphed(state, ctrl)
+            return State(out.x.clone(), out.v.clone(), {k: t.clone() for k, t in out.extra.items()})
     warm: set = set()
     packages: dict = {}
     scenes: dict = {}

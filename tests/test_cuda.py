@@ -1,0 +1,142 @@
+"""Every model runs on CUDA as it runs on the CPU (skipped where no CUDA device is present; CI has none).
+
+What is compared: the same weights (built and fitted on the CPU, then copied to the GPU) give the
+same one-step prediction, the same loss terms and the same short rollout on both devices; training
+steps (the trainer's own loop, with its device generator) and ``mdgs evaluate --device cuda`` run
+end to end; MDGS's compiled step (inductor, AOTInductor) on the GPU rolls out as its eager step.
+
+Tolerances: both devices compute in float32 with other kernels and summation orders (cuBLAS,
+atomic scatter-adds), so results agree to float32 round-off amplified through a few layers, not
+bit for bit. A one-step displacement or velocity may differ by 1e-3 of its largest entry (observed
+round-off is 1e-6..1e-5 relative; a misplaced buffer, a normalisation left on the CPU side or a
+wrong graph gives differences of order one); loss terms by 1e-3 relative; the position-MSE curve of
+a 10-frame rollout by 1e-2 relative (untrained models amplify round-off from frame to frame).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from mdgs.cli import app
+from mdgs.data.generate import GenerateConfig, generate
+from mdgs.data.split import load_split
+from mdgs.evaluate.rollout import rollout
+from mdgs.models import MODELS, batch_of, compile_step
+
+pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+
+#: Every torch model of the registry (MuJoCo runs on the CPU whatever the device).
+TORCH_MODELS = [n for n, c in MODELS.items() if n != "mujoco"]
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cubli")
+    generate(GenerateConfig(scene="cubli-triple", out=str(out), preset="tiny"))
+    return out
+
+
+@pytest.fixture(scope="module")
+def splits(data):
+    return load_split(data / "train.h5"), load_split(data / "test.h5")
+
+
+def _pair(name: str, tr):
+    """The model built and fitted on the CPU (seeded), and an exact copy of it on the GPU."""
+    torch.manual_seed(0)
+    cls = MODELS[name]
+    cpu = cls.from_data(tr, cls.Config())
+    gpu = copy.deepcopy(cpu).to("cuda")
+    return cpu.eval(), gpu.eval()
+
+
+def _close(a: torch.Tensor, b: torch.Tensor, rel: float, floor: float) -> float:
+    """Largest |a - b| over the scale of ``a``; fails past ``rel`` (``floor``: the least scale)."""
+    a, b = a.detach().double().cpu(), b.detach().double().cpu()
+    err = float((a - b).abs().max()) / max(float(a.abs().max()), floor)
+    assert np.isfinite(err) and err <= rel, f"relative difference {err:.2e} > {rel:.0e}"
+    return err
+
+
+@pytest.mark.parametrize("name", TORCH_MODELS)
+def test_one_step_agrees_between_cpu_and_cuda(name, splits):
+    tr, te = splits
+    cpu, gpu = _pair(name, tr)
+    outs = []
+    for m in (cpu, gpu):
+        m.bind(te)
+        traj = np.arange(te.x.shape[0])
+        st = m.initial_state(te, traj, m.history)
+        ctrl = torch.from_numpy(te.ctrl[traj, m.history]).to(m.device)
+        with torch.no_grad():
+            nxt = m.step(st, ctrl)
+        assert nxt.x.device.type == m.device.type and nxt.v.device.type == m.device.type
+        outs.append((nxt.x - st.x, nxt.v))
+    _close(outs[0][0], outs[1][0], 1e-3, 1e-9)  # displacement over the frame, m
+    _close(outs[0][1], outs[1][1], 1e-3, 1e-9)  # velocity, m/s
+
+
+@pytest.mark.parametrize("name", [n for n in TORCH_MODELS if MODELS[n].learned])
+def test_loss_terms_agree_between_cpu_and_cuda(name, splits):
+    tr, _ = splits
+    cpu, gpu = _pair(name, tr)
+    idx = tr.pairs(cpu.history)[:16]
+    terms = []
+    for m in (cpu, gpu):
+        m.train()
+        m.bind(tr)
+        with torch.no_grad():
+            terms.append({k: v for k, v in m.losses(batch_of(tr, idx, m.device, m.history)).items()})
+    assert terms[0].keys() == terms[1].keys()
+    for k in terms[0]:
+        _close(terms[0][k], terms[1][k], 1e-3, 1e-12)
+
+
+@pytest.mark.parametrize("name", TORCH_MODELS)
+def test_short_rollout_agrees_between_cpu_and_cuda(name, splits):
+    tr, te = splits
+    cpu, gpu = _pair(name, tr)
+    h = cpu.history
+    n = h + 11  # the given frames and 10 predicted ones
+    short = dataclasses.replace(te, **{k: getattr(te, k)[:, :n] for k in ("x", "v", "ctrl", "qpos", "qvel", "act")
+                                      if getattr(te, k) is not None})
+    a, b = rollout(cpu, short), rollout(gpu, short)
+    ca, cb = a.pos_mse[:, h + 1:n], b.pos_mse[:, h + 1:n]
+    assert np.isfinite(cb).all() == np.isfinite(ca).all()
+    ok = np.isfinite(ca) & np.isfinite(cb)
+    np.testing.assert_allclose(cb[ok], ca[ok], rtol=1e-2, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", [n for n in TORCH_MODELS if MODELS[n].learned and not MODELS[n].trains_as])
+def test_the_trainer_trains_on_cuda_and_evaluate_runs_there(name, data, tmp_path):
+    runner = CliRunner()
+    run = tmp_path / "run"
+    res = runner.invoke(app, ["train", "--data", str(data), "--out", str(run), "--model", name, "--epochs", "1",
+                              "--max-steps", "3", "--device", "cuda"])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["evaluate", str(run), "--data", str(data), "--device", "cuda",
+                              "--json", str(tmp_path / "r.json")])
+    assert res.exit_code == 0, res.output
+    r = json.loads((tmp_path / "r.json").read_text())["runs"][0]
+    curve = np.array(r["rollout_mse_curve"], dtype=float)  # None (NaN) once a trajectory diverges
+    first = curve[np.flatnonzero(curve != 0)[0]]  # the given frames score 0; NaN != 0 too
+    assert len(curve) == r["frames"] and np.isfinite(first) and first > 0  # the first predicted frame is a number
+
+
+@pytest.mark.parametrize("mode", ["inductor", "aot", "cudagraphs"])
+def test_compiled_mdgs_step_on_cuda_rolls_out_as_the_eager_step(mode, splits):
+    tr, te = splits
+    _, gpu = _pair("mdgs", tr)
+    eager = rollout(gpu, te)
+    compile_step(gpu, mode)
+    comp = rollout(gpu, te)
+    ok = np.isfinite(eager.pos_mse) & np.isfinite(comp.pos_mse)
+    assert ok[:, :20].all()
+    np.testing.assert_allclose(comp.pos_mse[:, :20], eager.pos_mse[:, :20], rtol=1e-3, atol=1e-12)
