@@ -36,6 +36,7 @@ import argparse
 import statistics
 import tempfile
 import time
+import traceback
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -195,7 +196,10 @@ def main() -> None:
             print(line, flush=True)
             rows.append(line)
         except Exception as e:  # noqa: BLE001 - one model that fails here is a row that says so; the table goes on
-            print(f"{label:22s} failed: {type(e).__name__}: {str(e).splitlines()[0][:100] if str(e) else ''}", flush=True)
+            where = [f"{Path(f.filename).name}:{f.lineno}" for f in traceback.extract_tb(e.__traceback__)
+                     if "/mdgs/" in f.filename or "bench_models" in f.filename][-3:]
+            print(f"{label:22s} failed: {type(e).__name__}: {str(e).splitlines()[0][:100] if str(e) else ''} "
+                  f"(at {' < '.join(reversed(where))})", flush=True)
             continue
         if args.compile is not None and model.compilable:
             for mode in args.compile or ["inductor"]:

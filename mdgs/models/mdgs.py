@@ -488,7 +488,10 @@ class MDGS(Simulator):
 
     def node_controls(self, ctrl: torch.Tensor) -> torch.Tensor:
         """Actuator controls [B, nu] -> per-node control features [B, N, nu] (+ on the driven body, - on its parent)."""
-        sign = self._sign.to(ctrl.device)
+        key = ("sign", str(ctrl.device))  # once per device: a host-to-device copy every step would also stop
+        if key not in self._scenes:        # the step from being captured as a CUDA graph
+            self._scenes[key] = self._sign.to(ctrl.device)
+        sign = self._scenes[key]
         return ctrl.to(torch.float32)[:, None, :] * sign.T[None]
 
     def set_normalization(self, mean: torch.Tensor, std: torch.Tensor) -> None:
@@ -656,7 +659,10 @@ class MDGS(Simulator):
                                                 scene.n_obj)
             out = out + torch.cat([torch.zeros_like(dv_act), dv_act / sv], -1)
         if self._gravity is not None:  # free fall over dt on every moving node
-            dv_g = (c.dt * self._gravity.to(dev)) * scene.moving(dev).unsqueeze(-1).to(out.dtype)  # [N, 3]
+            key = ("gravity", str(dev))
+            if key not in self._scenes:
+                self._scenes[key] = self._gravity.to(dev)
+            dv_g = (c.dt * self._scenes[key]) * scene.moving(dev).unsqueeze(-1).to(out.dtype)  # [N, 3]
             out = out + torch.cat([torch.zeros_like(dv_g), dv_g / sv], -1)
         x1, v1 = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx, dv_scale=sv,
                                            dvc_scale=c.dvc_scale, dw_scale=c.dw_scale)
