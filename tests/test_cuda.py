@@ -3,7 +3,13 @@
 What is compared: the same weights (built and fitted on the CPU, then copied to the GPU) give the
 same one-step prediction, the same loss terms and the same short rollout on both devices; training
 steps (the trainer's own loop, with its device generator) and ``mdgs evaluate --device cuda`` run
-end to end; MDGS's compiled step (inductor, AOTInductor) on the GPU rolls out as its eager step.
+end to end; MDGS's compiled step (inductor) on the GPU rolls out as its eager step; ``aot`` is
+refused there; CUDA graphs replay constant twist, not yet MDGS (a strict xfail: measured).
+
+Run on one H100 (2026-11-26, torch 2.11, ``benchmarks/cuda_session.sh``): the CPU-against-GPU,
+trainer and inductor tests passed (34 of them); the aot test crashed the process (now refused) and
+the cudagraphs capture of MDGS failed (now the xfail). The constant-twist CUDA-graph test has not yet
+run on a GPU.
 
 Tolerances: both devices compute in float32 with other kernels and summation orders (cuBLAS,
 atomic scatter-adds), so results agree to float32 round-off amplified through a few layers, not
@@ -27,8 +33,9 @@ from typer.testing import CliRunner
 from mdgs.cli import app
 from mdgs.data.generate import GenerateConfig, generate
 from mdgs.data.split import load_split
+from mdgs.evaluate.cost import compiled_cost
 from mdgs.evaluate.rollout import rollout
-from mdgs.models import MODELS, batch_of, compile_step
+from mdgs.models import MODELS, ModelError, batch_of, compile_step
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
 
@@ -130,13 +137,43 @@ def test_the_trainer_trains_on_cuda_and_evaluate_runs_there(name, data, tmp_path
     assert len(curve) == r["frames"] and np.isfinite(first) and first > 0  # the first predicted frame is a number
 
 
-@pytest.mark.parametrize("mode", ["inductor", "aot", "cudagraphs"])
-def test_compiled_mdgs_step_on_cuda_rolls_out_as_the_eager_step(mode, splits):
+def test_compiled_mdgs_step_on_cuda_rolls_out_as_the_eager_step(splits):
     tr, te = splits
     _, gpu = _pair("mdgs", tr)
     eager = rollout(gpu, te)
-    compile_step(gpu, mode)
+    compile_step(gpu, "inductor")
     comp = rollout(gpu, te)
     ok = np.isfinite(eager.pos_mse) & np.isfinite(comp.pos_mse)
     assert ok[:, :20].all()
     np.testing.assert_allclose(comp.pos_mse[:, :20], eager.pos_mse[:, :20], rtol=1e-3, atol=1e-12)
+
+
+def test_ahead_of_time_compiling_is_refused_on_cuda_and_the_cost_falls_back_to_inductor(splits):
+    """Loading an AOTInductor package of the MDGS step crashed the process on an H100 (torch 2.11,
+    CUDA 13), so ``aot`` is refused there with one ModelError, and ``compiled_cost`` times inductor."""
+    tr, te = splits
+    _, gpu = _pair("mdgs", tr)
+    with pytest.raises(ModelError, match="'aot' is refused on cuda"):
+        compile_step(gpu, "aot")
+    out = compiled_cost(gpu, te, "aot", batched=2)
+    assert out["compiled"] == "inductor" and out["note"].startswith("aot: ModelError")
+
+
+@pytest.mark.xfail(strict=True, raises=ModelError, reason="measured on an H100 (2026-11-26): the MDGS step copies "
+                   "between host and device inside, so it cannot be captured; likely Kabsch's SVD error check")
+def test_mdgs_step_replays_as_a_cuda_graph_as_the_eager_step(splits):
+    tr, te = splits
+    _, gpu = _pair("mdgs", tr)
+    eager = rollout(gpu, te)
+    compile_step(gpu, "cudagraphs")
+    comp = rollout(gpu, te)
+    np.testing.assert_allclose(comp.pos_mse[:, :20], eager.pos_mse[:, :20], rtol=1e-3, atol=1e-12)
+
+
+def test_constant_twist_replays_as_a_cuda_graph_as_the_eager_step(splits):
+    _, te = splits
+    ref = MODELS["constant-twist"].from_data(te).to("cuda")
+    eager = rollout(ref, te)
+    compile_step(ref, "cudagraphs")
+    comp = rollout(ref, te)
+    np.testing.assert_allclose(comp.x, eager.x, rtol=0, atol=1e-5)

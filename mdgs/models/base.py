@@ -252,7 +252,11 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
     kernels recorded once per batch shape into a CUDA graph and replayed, so a step costs one graph
     launch instead of one launch per kernel, which is what a small scene's step costs on a GPU. The
     replay writes into the same output buffers every step, so the step returns copies. A model on
-    the CPU raises :class:`ModelError`."""
+    the CPU raises :class:`ModelError`, and so does the first step of a model whose step cannot be
+    captured (one that copies between host and device inside: MDGS's does, measured on an H100,
+    ``docs/results.md``, "On a GPU"; the likely cause, not yet isolated, is its Kabsch SVD,
+    whose error check reads a result on the host). ``"aot"`` is refused on
+    CUDA: loading the package crashed the process there (torch 2.11, CUDA 13)."""
     if not isinstance(model, Simulator):
         raise TypeError(f"compile_step takes a Simulator, not {type(model).__name__}")
     if mode not in COMPILE_MODES:
@@ -261,6 +265,10 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
     # every instance: each compiled model adds one per batch shape, and past the limit (8 by default)
     # dynamo would silently run the step eagerly
     torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, 64)
+    if mode == "aot" and model.device.type == "cuda":
+        raise ModelError(f"compile mode 'aot' is refused on {model.device}: loading an AOTInductor package of the MDGS "
+                         "step crashed the process on an H100 (torch 2.11, CUDA 13; docs/results.md, "
+                         "'On a GPU'); use 'inductor' there")
     if mode == "cudagraphs" and model.device.type != "cuda":
         raise ModelError(f"compile mode 'cudagraphs' replays CUDA graphs, and {model.name!r} is on {model.device}: "
                          "move it to a CUDA device (--device cuda) or use 'inductor' or 'aot'")
@@ -276,7 +284,14 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
 
         def compiled(state: State, ctrl: torch.Tensor) -> State:
             torch.compiler.cudagraph_mark_step_begin()  # each call is a new replay: earlier outputs may be reused
-            out = graphed(state, ctrl)
+            try:
+                out = graphed(state, ctrl)
+            except RuntimeError as e:
+                if "graph capture" not in str(e):
+                    raise
+                raise ModelError(f"the step of {model.name!r} cannot be captured as a CUDA graph ({str(e).splitlines()[0][:90]}: "
+                                 "it synchronises with the host inside the step, e.g. torch.linalg's error checks); "
+                                 "use compile mode 'inductor'") from e
             return State(out.x.clone(), out.v.clone(), {k: t.clone() for k, t in out.extra.items()})
     warm: set = set()
     packages: dict = {}
