@@ -270,7 +270,9 @@ def resolution(lines, path: Path) -> bool:
     fig.suptitle(f"{base}: error and cost against the element partition", fontsize=10)
     axes[0].set_ylabel("position MSE at t = 40 (m$^2$)")
     axes[1].set_ylabel("ms per frame, 1 trajectory")
+    ticks = sorted({ln.get("refine", 1) for ln in use})
     for ax in axes:
+        ax.set_xticks(ticks)  # refinements are whole numbers
         ax.set_xlabel("partition refinement (1: default, coarsest adequate)")
         ax.set_yscale("log")
         ax.legend(fontsize=7)
