@@ -34,3 +34,13 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="session")
+def tiny_cubli(tmp_path_factory):
+    """A ``tiny`` cubli-triple dataset (train/valid/test), generated once per test session; tests read it."""
+    from mdgs.data.generate import GenerateConfig, generate
+
+    out = tmp_path_factory.mktemp("tiny-cubli")
+    generate(GenerateConfig(scene="cubli-triple", out=str(out), preset="tiny"))
+    return out

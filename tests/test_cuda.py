@@ -31,7 +31,6 @@ import torch
 from typer.testing import CliRunner
 
 from mdgs.cli import app
-from mdgs.data.generate import GenerateConfig, generate
 from mdgs.data.split import load_split
 from mdgs.evaluate.cost import compiled_cost
 from mdgs.evaluate.rollout import rollout
@@ -44,10 +43,8 @@ TORCH_MODELS = [n for n, c in MODELS.items() if n != "mujoco"]
 
 
 @pytest.fixture(scope="module")
-def data(tmp_path_factory):
-    out = tmp_path_factory.mktemp("cubli")
-    generate(GenerateConfig(scene="cubli-triple", out=str(out), preset="tiny"))
-    return out
+def data(tiny_cubli):
+    return tiny_cubli
 
 
 @pytest.fixture(scope="module")
@@ -137,11 +134,17 @@ def test_the_trainer_trains_on_cuda_and_evaluate_runs_there(name, data, tmp_path
     assert len(curve) == r["frames"] and np.isfinite(first) and first > 0  # the first predicted frame is a number
 
 
-def test_compiled_mdgs_step_on_cuda_rolls_out_as_the_eager_step(splits):
+CAPTURE_FAILS = pytest.mark.xfail(strict=True, raises=ModelError, reason="measured on an H100 (2026-11-26): the MDGS "
+                                  "step copies between host and device inside, so it cannot be captured as a CUDA "
+                                  "graph; likely Kabsch's SVD error check")
+
+
+@pytest.mark.parametrize("mode", ["inductor", pytest.param("cudagraphs", marks=CAPTURE_FAILS)])
+def test_compiled_mdgs_step_on_cuda_rolls_out_as_the_eager_step(mode, splits):
     tr, te = splits
     _, gpu = _pair("mdgs", tr)
     eager = rollout(gpu, te)
-    compile_step(gpu, "inductor")
+    compile_step(gpu, mode)
     comp = rollout(gpu, te)
     ok = np.isfinite(eager.pos_mse) & np.isfinite(comp.pos_mse)
     assert ok[:, :20].all()
@@ -157,17 +160,6 @@ def test_ahead_of_time_compiling_is_refused_on_cuda_and_the_cost_falls_back_to_i
         compile_step(gpu, "aot")
     out = compiled_cost(gpu, te, "aot", batched=2)
     assert out["compiled"] == "inductor" and out["note"].startswith("aot: ModelError")
-
-
-@pytest.mark.xfail(strict=True, raises=ModelError, reason="measured on an H100 (2026-11-26): the MDGS step copies "
-                   "between host and device inside, so it cannot be captured; likely Kabsch's SVD error check")
-def test_mdgs_step_replays_as_a_cuda_graph_as_the_eager_step(splits):
-    tr, te = splits
-    _, gpu = _pair("mdgs", tr)
-    eager = rollout(gpu, te)
-    compile_step(gpu, "cudagraphs")
-    comp = rollout(gpu, te)
-    np.testing.assert_allclose(comp.pos_mse[:, :20], eager.pos_mse[:, :20], rtol=1e-3, atol=1e-12)
 
 
 def test_constant_twist_replays_as_a_cuda_graph_as_the_eager_step(splits):

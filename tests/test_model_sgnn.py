@@ -16,7 +16,6 @@ import torch
 from typer.testing import CliRunner
 
 from mdgs.cli import app
-from mdgs.data.generate import GenerateConfig, generate
 from mdgs.data.split import load_split
 from mdgs.models import MODELS, ModelError, State, batch_of
 from mdgs.models.sgnn import SGNN, SGNNConfig, SGNNSnap
@@ -30,10 +29,8 @@ def _one_thread(one_torch_thread):
 
 
 @pytest.fixture(scope="module")
-def data(tmp_path_factory):
-    out = tmp_path_factory.mktemp("cubli")
-    generate(GenerateConfig(scene="cubli-triple", out=str(out), preset="tiny"))
-    return out
+def data(tiny_cubli):
+    return tiny_cubli
 
 
 @pytest.fixture(scope="module")
