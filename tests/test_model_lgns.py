@@ -15,7 +15,13 @@ import numpy as np
 import pytest
 import torch
 
-from mdgs.models.mechanics import _Builder, _select, lagrangian_acceleration, velocity_verlet
+from mdgs.models.mechanics import (
+    _Builder,
+    _select,
+    lagrangian_acceleration,
+    solve_multipliers,
+    velocity_verlet,
+)
 
 G = 9.81
 #: Integration steps of the analytic cases (kept small: each step is a double autodiff in float64).
@@ -199,6 +205,21 @@ def check_cli(name, data, tmp_path):
     assert r.exit_code == 0, r.output
     report = json.loads(rep.read_text())
     assert name in json.dumps(report)
+
+
+def test_dependent_constraints_get_the_minimum_norm_multipliers_instead_of_an_error():
+    """Two copies of one constraint make ``J M^-1 J^T`` exactly singular: ``torch.linalg.solve`` raises
+    on it (as it did on a GPU at batch 256); the multipliers are then the pseudo-inverse's minimum-norm
+    solution, which splits the force evenly over the copies (the textbook answer for redundant
+    constraints), and a solvable row of the same batch keeps its exact solution."""
+    J = torch.tensor([[[1.0, 0.0], [1.0, 0.0]], [[1.0, 0.0], [0.0, 2.0]]], dtype=torch.float64)  # [B=2, m=2, D=2]
+    Minv_JT = J.transpose(1, 2)  # M = I
+    rhs = torch.tensor([[2.0, 2.0], [3.0, 8.0]], dtype=torch.float64)
+    with pytest.raises(RuntimeError, match="singular"):
+        torch.linalg.solve(J @ Minv_JT, rhs.unsqueeze(-1))
+    lam = solve_multipliers(Minv_JT, J, rhs, eps=0.0)
+    torch.testing.assert_close(lam[0], torch.tensor([1.0, 1.0], dtype=torch.float64))  # 1 + 1 = 2 on each row
+    torch.testing.assert_close(lam[1], torch.tensor([3.0, 2.0], dtype=torch.float64))  # diag(1, 4) lam = (3, 8)
 
 
 def test_lgns_shapes_and_constraints(micro_data):

@@ -635,13 +635,20 @@ def _select(bld: _Builder, n_rigid: int, static: np.ndarray, act: list) -> tuple
 
 def solve_multipliers(Minv_JT: torch.Tensor, J: torch.Tensor, rhs: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:
     """``lambda`` of ``(J M^-1 J^T) lambda = rhs`` ([B, m]); a relative ``eps`` ridge keeps it solvable
-    where the constraints become dependent (a damped pseudo-inverse)."""
+    where the constraints become dependent (a damped pseudo-inverse). Where the factorisation still
+    meets an exactly zero pivot (the ridge is below the dtype's resolution; seen on a GPU at batch 256,
+    where the CPU's pivots came out merely tiny), the whole batch takes the pseudo-inverse's
+    minimum-norm solution instead of raising (the whole batch: a ``where`` over a NaN branch would put
+    NaN into the gradients)."""
     A = J @ Minv_JT
     if A.shape[-1] == 0:
         return rhs
     ridge = eps * A.diagonal(dim1=-2, dim2=-1).abs().mean(-1).clamp_min(1e-300)
     A = A + ridge[:, None, None] * torch.eye(A.shape[-1], dtype=A.dtype, device=A.device)
-    return torch.linalg.solve(A, rhs.unsqueeze(-1))[..., 0]
+    sol, info = torch.linalg.solve_ex(A, rhs.unsqueeze(-1))
+    if bool((info != 0).any()):
+        sol = torch.linalg.pinv(A) @ rhs.unsqueeze(-1)
+    return sol[..., 0]
 
 
 def _solve_mass(M: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
