@@ -636,10 +636,10 @@ def _select(bld: _Builder, n_rigid: int, static: np.ndarray, act: list) -> tuple
 def solve_multipliers(Minv_JT: torch.Tensor, J: torch.Tensor, rhs: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:
     """``lambda`` of ``(J M^-1 J^T) lambda = rhs`` ([B, m]); a relative ``eps`` ridge keeps it solvable
     where the constraints become dependent (a damped pseudo-inverse). Where the factorisation still
-    meets an exactly zero pivot (the ridge is below the dtype's resolution; seen on a GPU at batch 256,
-    where the CPU's pivots came out merely tiny), the whole batch takes the pseudo-inverse's
-    minimum-norm solution instead of raising (the whole batch: a ``where`` over a NaN branch would put
-    NaN into the gradients)."""
+    reports an exactly zero pivot (seen on a GPU at batch 256 and 4096 with the CPU's states solving
+    fine; why is not established), the whole batch takes the pseudo-inverse's minimum-norm solution
+    instead of raising (the whole batch: a ``where`` over a NaN branch would put NaN into the
+    gradients)."""
     A = J @ Minv_JT
     if A.shape[-1] == 0:
         return rhs
