@@ -12,6 +12,8 @@ the predicted positions; the aligned output is ``R* p_i + t*``. Shapes follow th
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import torch
 
@@ -111,7 +113,11 @@ def kabsch(ref: torch.Tensor, pred: torch.Tensor, seg: torch.Tensor, n_seg: int 
     Computed in float64. The SVD of the cross-covariance ``H = sum_i w_i p~_i q~_i^T = U S V^T``
     gives ``R = V diag(1, 1, d) U^T`` with ``d = sign(det(V U^T))`` (reflection correction).
     Segments with fewer than three non-collinear nodes have a non-unique rotation; the
-    aligned positions are still exact for them.
+    aligned positions are still exact for them. Inside :func:`horn_rotations` the same optimum
+    comes from :func:`rotation_horn` instead: ``torch.linalg.svd`` reads its error flag on the host,
+    which stops a step from being captured as a CUDA graph (``compile_step(model, "cudagraphs")``
+    traces the step inside it); eagerly the one SVD call is the cheaper (on one CPU thread, 4
+    matrices: 0.12 ms against Horn's 1.1 ms).
     """
     n_seg = int(seg.max()) + 1 if n_seg is None else n_seg
     B = pred.shape[0]
@@ -131,16 +137,81 @@ def kabsch(ref: torch.Tensor, pred: torch.Tensor, seg: torch.Tensor, n_seg: int 
     # (branch-free: no host sync, one graph under torch.compile)
     bad = ~torch.isfinite(H).flatten(-2).all(-1)  # [B, S]
     H = torch.where(bad[..., None, None], torch.eye(3, dtype=H.dtype, device=H.device), H)
+    R = rotation_horn(H) if _HORN else _rotation_svd(H)
+    t = cq - (R @ cp.unsqueeze(-1)).squeeze(-1)
+    R = torch.where(bad[..., None, None], torch.nan, R)
+    t = torch.where(bad[..., None], torch.nan, t)
+    return R, t
+
+
+def _rotation_svd(H: torch.Tensor) -> torch.Tensor:
+    """The proper rotation ``R`` [..., 3, 3] maximising ``tr(R H)`` (Kabsch: ``H = U S V^T``,
+    ``R = V diag(1, 1, det(V U^T)) U^T``) for cross-covariances ``H`` [..., 3, 3]."""
     U, _, Vh = torch.linalg.svd(H)
     V = Vh.transpose(-1, -2)
     d = torch.sign(det3(V) * det3(U))  # det(V U^T)
     d = torch.where(d == 0, torch.ones_like(d), d)
     D = torch.diag_embed(torch.stack([torch.ones_like(d), torch.ones_like(d), d], -1))
-    R = V @ D @ U.transpose(-1, -2)
-    t = cq - (R @ cp.unsqueeze(-1)).squeeze(-1)
-    R = torch.where(bad[..., None, None], torch.nan, R)
-    t = torch.where(bad[..., None], torch.nan, t)
-    return R, t
+    return V @ D @ U.transpose(-1, -2)
+
+
+_HORN = False  # set by horn_rotations(); read by kabsch (a traced step bakes in its value)
+
+
+@contextlib.contextmanager
+def horn_rotations():
+    """Within this block :func:`kabsch` fits rotations with :func:`rotation_horn` (matrix products
+    only) instead of the SVD: what a step captured as a CUDA graph must use."""
+    global _HORN
+    before, _HORN = _HORN, True
+    try:
+        yield
+    finally:
+        _HORN = before
+
+
+#: Squarings of Horn's shifted 4x4 matrix: the top eigenvector's error shrinks as
+#: ``(lambda_2 / lambda_1) ** (2 ** k)``, so 40 resolve eigenvalue gaps down to ~1e-11 relative
+#: (a body thinner than that has a non-unique rotation anyway).
+HORN_SQUARINGS = 40
+
+
+def rotation_horn(H: torch.Tensor, squarings: int = HORN_SQUARINGS) -> torch.Tensor:
+    """The proper rotation ``R`` [..., 3, 3] maximising ``tr(R H)`` for cross-covariances ``H``
+    [..., 3, 3] (``H = sum_i w_i p~_i q~_i^T``, reference ``p`` onto prediction ``q``), by Horn's
+    quaternion method (Horn 1987, J. Opt. Soc. Am. A 4(4), Eq. 41-44): the unit quaternion of ``R``
+    is the top eigenvector of the symmetric 4x4 ``N(H)``, whose eigenvalues lie in
+    ``[-c, c]`` with ``c = sqrt(3) |H|_F``. ``N + c I`` is positive semi-definite, and repeated
+    squaring (each normalised by its trace) turns it into the projector onto that eigenvector; its
+    largest column, normalised, is the quaternion. Only matrix products and elementwise arithmetic:
+    no host synchronisation, so a step using it can be captured as a CUDA graph. The same optimum
+    as the SVD's reflection-corrected Kabsch where that is unique (tests/test_structure.py); where
+    it is not (collinear nodes, fewer than three nodes), another rotation of the same fit."""
+    Sxx, Sxy, Sxz = H[..., 0, 0], H[..., 0, 1], H[..., 0, 2]
+    Syx, Syy, Syz = H[..., 1, 0], H[..., 1, 1], H[..., 1, 2]
+    Szx, Szy, Szz = H[..., 2, 0], H[..., 2, 1], H[..., 2, 2]
+    N = torch.stack([
+        torch.stack([Sxx + Syy + Szz, Syz - Szy, Szx - Sxz, Sxy - Syx], -1),
+        torch.stack([Syz - Szy, Sxx - Syy - Szz, Sxy + Syx, Szx + Sxz], -1),
+        torch.stack([Szx - Sxz, Sxy + Syx, -Sxx + Syy - Szz, Syz + Szy], -1),
+        torch.stack([Sxy - Syx, Szx + Sxz, Syz + Szy, -Sxx - Syy + Szz], -1),
+    ], -2)  # [..., 4, 4]
+    c = (3.0 ** 0.5) * H.flatten(-2).norm(dim=-1).clamp_min(torch.finfo(H.dtype).tiny)
+    eye = torch.eye(4, dtype=H.dtype, device=H.device)
+    M = (N + c[..., None, None] * eye) / (4.0 * c[..., None, None])  # PSD, eigenvalues in [0, 1/2]
+    for _ in range(squarings):
+        M = M @ M
+        M = M / (M.diagonal(dim1=-2, dim2=-1).sum(-1)[..., None, None]
+                 .clamp_min(torch.finfo(H.dtype).tiny))
+    col = M.norm(dim=-2).argmax(-1)  # [...]: the column of the projector with the most weight
+    q = torch.take_along_dim(M, col[..., None, None].expand(*M.shape[:-1], 1), dim=-1)[..., 0]
+    w, x, y, z = (q / q.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(H.dtype).tiny)).unbind(-1)
+    # the rotation of the unit quaternion (w, x, y, z), applied as R @ p
+    return torch.stack([
+        torch.stack([w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        torch.stack([2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)], -1),
+        torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z], -1),
+    ], -2)
 
 
 def align_to_reference(pred: torch.Tensor, ref: torch.Tensor, seg: torch.Tensor, n_seg: int | None = None,

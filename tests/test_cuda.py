@@ -3,13 +3,14 @@
 What is compared: the same weights (built and fitted on the CPU, then copied to the GPU) give the
 same one-step prediction, the same loss terms and the same short rollout on both devices; training
 steps (the trainer's own loop, with its device generator) and ``mdgs evaluate --device cuda`` run
-end to end; MDGS's compiled step (inductor) on the GPU rolls out as its eager step; ``aot`` is
-refused there; CUDA graphs replay constant twist, not yet MDGS (a strict xfail: measured).
+end to end; MDGS's compiled step (inductor, and replayed as a CUDA graph) on the GPU rolls out as
+its eager step; ``aot`` is refused there.
 
 Run on one H100 (2026-11-26, torch 2.11, ``benchmarks/cuda_session.sh``): the CPU-against-GPU,
 trainer and inductor tests passed (34 of them); the aot test crashed the process (now refused) and
-the cudagraphs capture of MDGS failed (now the xfail). The constant-twist CUDA-graph test has not yet
-run on a GPU.
+the capture of MDGS as a CUDA graph failed (a host-device copy inside the step). Since then the
+captured step fits rotations by Horn's method instead of the SVD (``mdgs.structure.horn_rotations``);
+the CUDA-graph tests (MDGS, constant twist) have not yet run on a GPU.
 
 Tolerances: both devices compute in float32 with other kernels and summation orders (cuBLAS,
 atomic scatter-adds), so results agree to float32 round-off amplified through a few layers, not
@@ -134,12 +135,7 @@ def test_the_trainer_trains_on_cuda_and_evaluate_runs_there(name, data, tmp_path
     assert len(curve) == r["frames"] and np.isfinite(first) and first > 0  # the first predicted frame is a number
 
 
-CAPTURE_FAILS = pytest.mark.xfail(strict=True, raises=ModelError, reason="measured on an H100 (2026-11-26): the MDGS "
-                                  "step copies between host and device inside, so it cannot be captured as a CUDA "
-                                  "graph; likely Kabsch's SVD error check")
-
-
-@pytest.mark.parametrize("mode", ["inductor", pytest.param("cudagraphs", marks=CAPTURE_FAILS)])
+@pytest.mark.parametrize("mode", ["inductor", "cudagraphs"])
 def test_compiled_mdgs_step_on_cuda_rolls_out_as_the_eager_step(mode, splits):
     tr, te = splits
     _, gpu = _pair("mdgs", tr)

@@ -8,7 +8,7 @@ import torch
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mdgs.structure import align_to_reference, kabsch
+from mdgs.structure import _rotation_svd, align_to_reference, horn_rotations, kabsch, rotation_horn
 
 
 def _rotation(q):
@@ -144,3 +144,67 @@ def test_one_segment_sums_compile_on_two_threads_and_match_index_add():
         torch.set_num_threads(threads)
     for a, b in zip(got, f(x, v), strict=True):
         assert torch.allclose(a, b, rtol=0, atol=1e-12)
+
+
+def _fit(R, P, Q):
+    """Sum of squared residuals ``|R p_i - q_i|^2`` [B] of rotations R [B, 3, 3] on centred P [N, 3], Q [B, N, 3]."""
+    return ((torch.einsum("bij,nj->bni", R, P) - Q) ** 2).sum((1, 2))
+
+
+def test_horns_quaternion_rotation_is_the_reflection_corrected_kabsch_optimum():
+    """:func:`rotation_horn` (matrix products only: what a CUDA graph can capture) gives the SVD's
+    rotation to 1e-12 where the optimum is unique: random shapes, a cube of cells (three equal
+    singular values), a flat plate, noisy and mirrored predictions; a proper rotation (det +1,
+    orthonormal to 1e-12) every time; and where the optimum is not unique (collinear nodes, one
+    node) a rotation whose fit is as good as the SVD's."""
+    rng = np.random.default_rng(0)
+    cube = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
+    flat = np.c_[rng.normal(size=(9, 2)), np.zeros(9)]
+    shapes = {"random": rng.normal(size=(10, 3)), "cube": cube, "flat": flat,
+              "mirrored": rng.normal(size=(10, 3))}
+    for name, P in shapes.items():
+        P = torch.tensor(P - P.mean(0))
+        Rt = torch.tensor(np.stack([_rotation(rng.normal(size=4)) for _ in range(64)]))
+        Q = torch.einsum("bij,nj->bni", Rt, P) + 1e-3 * torch.tensor(rng.normal(size=(64, len(P), 3)))
+        if name == "mirrored":  # through a plane: no proper rotation fits, det(H) < 0
+            Q = Q * torch.tensor([1.0, 1.0, -1.0], dtype=torch.float64)
+        Q = Q - Q.mean(1, keepdim=True)
+        H = torch.einsum("ni,bnj->bij", P, Q)
+        Rh, Rs = rotation_horn(H), _rotation_svd(H)
+        np.testing.assert_allclose(Rh.numpy(), Rs.numpy(), atol=1e-12, err_msg=name)
+        np.testing.assert_allclose(torch.linalg.det(Rh).numpy(), 1.0, atol=1e-12)
+        np.testing.assert_allclose((Rh @ Rh.transpose(1, 2)).numpy(), np.broadcast_to(np.eye(3), Rh.shape), atol=1e-12)
+    for P in (np.outer(rng.normal(size=6), [0.3, -0.5, 0.8]), np.zeros((1, 3))):  # a line; a single node
+        P = torch.tensor(P - P.mean(0))
+        Rt = torch.tensor(np.stack([_rotation(rng.normal(size=4)) for _ in range(16)]))
+        Q = torch.einsum("bij,nj->bni", Rt, P)
+        H = torch.einsum("ni,bnj->bij", P, Q)
+        Rh = rotation_horn(H)
+        assert torch.isfinite(Rh).all()
+        np.testing.assert_allclose(torch.linalg.det(Rh).numpy(), 1.0, atol=1e-12)
+        np.testing.assert_allclose(_fit(Rh, P, Q).numpy(), _fit(_rotation_svd(H), P, Q).numpy(), atol=1e-20)
+
+
+def test_mdgs_rolls_out_the_same_with_horns_rotation_as_with_the_svd(tiny_cubli, monkeypatch):
+    """What a step captured as a CUDA graph runs (Horn's rotation in every Kabsch fit: the structural
+    constraint, the joint projection, the motor prior) against the SVD, on the same device: an untrained MDGS
+    with the motor prior (its network acting) rolls out the tiny Cubli test trajectories to the same
+    positions within float32 round-off over its first 40 frames."""
+    import mdgs.structure
+    from mdgs.data.split import load_split
+    from mdgs.evaluate.rollout import rollout
+    from mdgs.models import MODELS
+    from mdgs.models.mdgs import ModelConfig
+
+    calls = []
+    monkeypatch.setattr(mdgs.structure, "rotation_horn", lambda H: calls.append(H.shape) or rotation_horn(H))
+    te = load_split(tiny_cubli / "test.h5")
+    torch.manual_seed(0)
+    model = MODELS["mdgs"].from_data(te, ModelConfig(zero_init=False, actuation="prior"))
+    svd = rollout(model, te, "cpu")
+    assert not calls  # outside the block: the SVD
+    with horn_rotations():
+        horn = rollout(model, te, "cpu")
+    assert len(calls) >= 2 * (te.x.shape[1] - 1)  # the structure's fit and the motor prior's, every step
+    assert np.abs(svd.x[:, -1] - te.x[:, -1]).max() > 1e-3  # the untrained network does move things
+    np.testing.assert_allclose(horn.x[:, :40], svd.x[:, :40], rtol=0, atol=1e-5)

@@ -26,6 +26,7 @@ import torch
 from torch import nn
 
 from mdgs.data.split import SplitData
+from mdgs.structure import horn_rotations
 
 __all__ = ["State", "Batch", "Simulator", "ModelError", "batch_of", "compile_step", "COMPILE_MODES", "one_step_error"]
 
@@ -253,9 +254,10 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
     launch instead of one launch per kernel, which is what a small scene's step costs on a GPU. The
     replay writes into the same output buffers every step, so the step returns copies. A model on
     the CPU raises :class:`ModelError`, and so does the first step of a model whose step cannot be
-    captured (one that copies between host and device inside: MDGS's does, measured on an H100,
-    ``docs/results.md``, "On a GPU"; the likely cause, not yet isolated, is its Kabsch SVD,
-    whose error check reads a result on the host). ``"aot"`` is refused on
+    captured (one that copies between host and device inside). The step is traced inside
+    :func:`mdgs.structure.horn_rotations`, so its Kabsch fits use Horn's quaternion method instead of
+    the SVD, whose error check reads a result on the host: with the SVD the MDGS step failed to
+    capture on an H100 (``docs/results.md``, "On a GPU"); with Horn's method it has not yet run on a GPU. ``"aot"`` is refused on
     CUDA: loading the package crashed the process there (torch 2.11, CUDA 13)."""
     if not isinstance(model, Simulator):
         raise TypeError(f"compile_step takes a Simulator, not {type(model).__name__}")
@@ -285,7 +287,8 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
         def compiled(state: State, ctrl: torch.Tensor) -> State:
             torch.compiler.cudagraph_mark_step_begin()  # each call is a new replay: earlier outputs may be reused
             try:
-                out = graphed(state, ctrl)
+                with horn_rotations():  # Kabsch without the SVD's host-side error check
+                    out = graphed(state, ctrl)
             except RuntimeError as e:
                 if "graph capture" not in str(e):
                     raise
