@@ -574,7 +574,8 @@ def test_committed_small_study_has_no_table_4_repeating_table_1():
 
 @pytest.mark.parametrize("title", ["Stability", "Speed"])
 def test_stability_and_speed_rows_group_references_before_learned_rows_per_scene(title):
-    """Per scene (in study order): every reference row, then the learned rows in Table 1's order."""
+    """Per scene (in study order): every reference row (the default partition's, then each finer
+    partition's, MuJoCo by timestep factor within each), then the learned rows in Table 1's order."""
     tables = _committed_small_tables()
     rows = tables[title].rows
     learned_order = [r[0] for r in tables["Table 1"].rows if not r[0].endswith("(reference)")]
@@ -591,8 +592,12 @@ def test_stability_and_speed_rows_group_references_before_learned_rows_per_scene
         learned = [lbl for lbl in labels if lbl in learned_order]
         assert learned == sorted(learned, key=learned_order.index), (title, sc, learned)
         refs = [lbl for lbl in labels if lbl not in learned_order]
-        mujoco = [int(lbl.split("x")[-1]) for lbl in refs if lbl.startswith("mujoco dt x")]
-        assert mujoco == sorted(mujoco)
+        parts = [int(lbl.partition(" refine ")[2] or 1) for lbl in refs]
+        assert parts == sorted(parts), (title, sc, refs)
+        for part in set(parts):
+            mujoco = [int(lbl.partition(" refine ")[0].split("x")[-1]) for lbl, q in zip(refs, parts, strict=True)
+                      if q == part and lbl.startswith("mujoco dt x")]
+            assert mujoco == sorted(mujoco), (title, sc, part, mujoco)
 
 
 def test_only_runs_the_named_rows_and_scenes_and_the_whole_study_counts_them_finished(tmp_path):
