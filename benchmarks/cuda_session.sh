@@ -26,6 +26,6 @@ timeout "${T_COMPILED:-150}" python3 benchmarks/bench_models.py --device cuda --
   --compile cudagraphs inductor 2>&1 | grep -v -E "Warning|warnings.warn" | tee "$OUT/bench_compiled.txt"
 echo "compiled bench: $((SECONDS - s)) s" | tee -a "$OUT/bench_compiled.txt"
 s=$SECONDS
-timeout "${T_TEST:-300}" python3 -m pytest -q -p no:cacheprovider -rA --durations=8 ${PYTEST_K:+-k "$PYTEST_K"} tests/test_cuda.py 2>&1 \
+timeout "${T_TEST:-270}" python3 -m pytest -q -p no:cacheprovider -rA --durations=8 ${PYTEST_K:+-k "$PYTEST_K"} tests/test_cuda.py 2>&1 \
   | grep -v -E "Warning|warnings.warn|^\s*$|return (cls|torch)" | tee "$OUT/test_cuda.log"
 echo "tests: $((SECONDS - s)) s" | tee -a "$OUT/test_cuda.log"
