@@ -1,7 +1,7 @@
 """Where a single-trajectory rollout step of every model spends its time: arithmetic or overhead.
 
     python benchmarks/profile_step.py [--scene cubli-triple] [--models mdgs gns ...] [--frames 10] [--repeats 5]
-                                      [--compile] [--widths 100 50]
+                                      [--compile] [--widths 100 50] [--device cuda]
 
 One run, this machine, CPU, one torch thread, batch 1 (one trajectory), untrained weights (the cost
 of a step does not depend on training), on a ``tiny`` dataset of the scene written to a temporary
@@ -28,6 +28,9 @@ arithmetic: tensor creation (empty, zeros, ones, full, eye, arange, tensor/as_te
 views and shape changes (view, reshape, expand, unsqueeze, transpose, select, slice, as_strided,
 contiguous, clone), indexing and data movement (index, index_put, index_select, gather, scatter,
 cat, stack, nonzero, unique, masked_select), error checks (``_linalg_check_errors``), ``item``.
+
+``--device cuda`` profiles each torch model's step on the GPU instead: kernels launched per step, the
+GPU time of those kernels and its share of the wall time (a small share: the step is launch-bound).
 
 ``--compile`` profiles the ``torch.compile``d step (:func:`mdgs.models.compile_step`, compiled with
 inductor's per-kernel profiling on): each fused C++ kernel of the compiled graph
@@ -104,6 +107,49 @@ def _quiet_stderr():
         os.close(saved)
 
 
+def _cuda_profiled_rollout(step, state, ctrl) -> tuple[float, float, int]:
+    """Wall seconds of ``len(ctrl)`` steps on a CUDA device under the profiler (synchronised at the
+    end), the seconds its kernels kept the GPU busy and how many kernels it launched."""
+    with _quiet_stderr(), profile(activities=[ProfilerActivity.CPU, ProfilerActivity.CUDA]) as prof:
+        torch.cuda.synchronize()
+        t0 = time.perf_counter()
+        s = state
+        for c in ctrl:
+            s = step(s, c)
+        torch.cuda.synchronize()
+        wall = time.perf_counter() - t0
+    busy, kernels = 0.0, 0
+    for e in prof.events():
+        if e.device_type == torch.autograd.DeviceType.CUDA:  # a kernel or copy that ran on the GPU
+            busy += e.device_time * 1e-6
+            kernels += 1
+    return wall, busy, kernels
+
+
+@torch.no_grad()
+def profile_model_cuda(model, te, frames: int, repeats: int) -> dict:
+    """Per-step medians of one model on one trajectory of ``te`` on a CUDA device: ms (unprofiled),
+    kernels launched, GPU-busy ms (the kernels' own time) and its share of the profiled wall time
+    (small: the step waits on launches, not arithmetic)."""
+    ms = step_cost(model, te, batch=1, frames=frames, repeats=repeats)["ms_per_frame"]
+    h = model.history
+    frames = max(1, min(frames, te.x.shape[1] - h - 1))
+    ctrl = [torch.from_numpy(te.ctrl[[0], h + t]).to(model.device) for t in range(frames)]
+    step = getattr(model, "cost_step", model.step)
+    walls, busy, kernels = [], [], []
+    for _ in range(repeats):
+        state = model.initial_state(te, np.array([0]), h)
+        for c in ctrl[:2]:
+            step(state, c)
+        w, b, k = _cuda_profiled_rollout(step, state, ctrl)
+        walls.append(w)
+        busy.append(b)
+        kernels.append(k)
+    return {"ms": ms, "prof_ms": 1e3 * statistics.median(walls) / frames,
+            "kernels": statistics.median(kernels) / frames, "busy_ms": 1e3 * statistics.median(busy) / frames,
+            "busy": statistics.median(b / w for b, w in zip(busy, walls, strict=True))}
+
+
 def _profiled_rollout(step, state, ctrl) -> tuple[float, dict[str, float]]:
     """Wall seconds of ``len(ctrl)`` steps under the profiler and the self CPU seconds of each op."""
     with _quiet_stderr(), profile(activities=[ProfilerActivity.CPU]) as prof:
@@ -153,8 +199,12 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--compile", action="store_true", help="profile the torch.compile'd step (module docstring)")
     ap.add_argument("--widths", nargs="*", type=int, default=[], help="MDGS also at these hidden widths")
+    ap.add_argument("--device", default="cpu", help="cpu, or cuda: kernels per step and GPU-busy share instead "
+                                                  "of the op table (MuJoCo is left out there)")
     args = ap.parse_args()
     torch.set_num_threads(1)
+    if args.device != "cpu":
+        return _main_cuda(args)
     if args.compile:
         import torch._inductor.config as inductor_config
 
@@ -181,6 +231,34 @@ def main() -> None:
     print("ms/step: unprofiled; prof ms: wall with the profiler on; op ms: summed self CPU time of torch ops; "
           "arith %: its arithmetic share; overhead ms: Python/dispatch overhead (wall outside any torch op); "
           "* arithmetic op")
+
+
+def _main_cuda(args) -> None:
+    """``--device cuda``: where a single-trajectory step's time goes on a GPU."""
+    from mdgs.models import compile_step
+
+    dev = torch.device(args.device)
+    tr, te = tiny_splits(args.scene)
+    names = [n for n in (args.models or list(MODELS)) if n != "mujoco"]
+    print(f"scene {args.scene}: {tr.x.shape[2]} nodes, batch 1, {torch.cuda.get_device_name(dev)}; per step, medians "
+          f"of {args.repeats} rollouts of {args.frames} steps" + ("; compiled steps (inductor)" if args.compile else ""))
+    print(f"{'model':22s}{'ms/step':>9s}{'prof ms':>9s}{'kernels':>9s}{'GPU ms':>9s}{'GPU busy %':>12s}")
+    for label, model in registry_models(names, tr, tuple(args.widths), dev):
+        if isinstance(model, str):
+            print(f"{label:22s} refused: {model}")
+            continue
+        try:
+            if args.compile:
+                model.bind(te)
+                compile_step(model)
+            r = profile_model_cuda(model, te, args.frames, args.repeats)
+        except Exception as e:  # noqa: BLE001 - one model that fails here is a row saying so; the table goes on
+            print(f"{label:22s} failed: {type(e).__name__}: {str(e).splitlines()[0][:100] if str(e) else ''}")
+            continue
+        print(f"{label:22s}{r['ms']:>9.3f}{r['prof_ms']:>9.3f}{r['kernels']:>9.0f}{r['busy_ms']:>9.3f}"
+              f"{100 * r['busy']:>12.0f}", flush=True)
+    print("ms/step: unprofiled; prof ms: wall with the profiler on; kernels: GPU kernels and copies launched per "
+          "step; GPU ms: their own time per step; GPU busy %: GPU ms over prof ms (the rest is launching and Python)")
 
 
 if __name__ == "__main__":
