@@ -93,6 +93,12 @@ def registry_models(names: list[str], tr: SplitData, widths: tuple[int, ...] = (
                 yield name + suffix, str(e)
 
 
+def _col(batch: int) -> int:
+    """Width of the ``ms/tf b<batch>`` column: at least two spaces before its label (the docs' table
+    reader splits the header on two or more spaces)."""
+    return max(12, len(f"ms/tf b{batch}") + 2)
+
+
 def _matmul_rate(device: torch.device, repeats: int = 20) -> tuple[float, int]:
     """FLOP/s of a dense float32 ``[rows x 200] @ [200 x 200]`` on ``device`` and its rows (8192 on a
     CPU; 2^20 on a GPU, where the smaller product is launch-bound)."""
@@ -123,7 +129,7 @@ def _compiled_line(label: str, model: Simulator, te: SplitData, args, mode: str 
     compile_s = time.perf_counter() - t0
     costs = [step_cost(model, te, batch=b, frames=args.frames, repeats=args.repeats) for b in args.batches]
     diff = float(np.nanmax(np.abs(compiled.x - eager.x)))
-    return (f"{name:22s}{'':>10s}{'':>10s}" + "".join(f"{c['ms_per_trajectory_frame']:>12.3f}" for c in costs)
+    return (f"{name:22s}{'':>10s}{'':>10s}" + "".join(f"{c['ms_per_trajectory_frame']:>{_col(c['batch'])}.3f}" for c in costs)
             + f"   compile {compile_s:.0f} s, rollout max |dx| {diff:.1e} m")
 
 
@@ -153,7 +159,7 @@ def main() -> None:
     where = torch.cuda.get_device_name(dev) if dev.type == "cuda" else "CPU"
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, frame {tr.frame_dt * 1e3:.0f} ms, torch threads "
           f"{args.threads}, torch models on {where}; dense matmul [{rows}x200]@[200x200] {rate / 1e9:.1f} GFLOP/s")
-    head = f"{'model':22s}{'params':>10s}{'train ms':>10s}" + "".join(f"{'ms/tf b' + str(b):>12s}" for b in args.batches)
+    head = f"{'model':22s}{'params':>10s}{'train ms':>10s}" + "".join(f"{'ms/tf b' + str(b):>{_col(b)}s}" for b in args.batches)
     print(head + f"{'% matmul':>10s}{'floor ms/tf':>13s}")
     rows = []
     for label, model in registry_models(names, tr, tuple(args.widths), dev):
@@ -192,7 +198,7 @@ def main() -> None:
                 frac = f"{100 * flops / (costs[-1]['ms_per_frame'] * 1e-3) / rate:.0f}"
                 floor = f"{1e3 * flops / big / rate:.4f}"
             line = (f"{label:22s}{model.parameter_count():>10d}{train_ms:>10s}"
-                    + "".join(f"{c['ms_per_trajectory_frame']:>12.3f}" for c in costs) + f"{frac:>10s}{floor:>13s}")
+                    + "".join(f"{c['ms_per_trajectory_frame']:>{_col(c['batch'])}.3f}" for c in costs) + f"{frac:>10s}{floor:>13s}")
             print(line, flush=True)
             rows.append(line)
         except Exception as e:  # noqa: BLE001 - one model that fails here is a row that says so; the table goes on
