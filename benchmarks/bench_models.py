@@ -151,6 +151,8 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     dev = torch.device(args.device)
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        ap.error("--device cuda: no CUDA device is present (torch.cuda.is_available() is false)")
     if dev.type == "cuda":
         torch.backends.cuda.matmul.allow_tf32 = False  # the models' float32, as on the CPU
     names = args.models or list(MODELS)

@@ -204,6 +204,8 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(1)
     if args.device != "cpu":
+        if not torch.cuda.is_available():
+            ap.error(f"--device {args.device}: no CUDA device is present (torch.cuda.is_available() is false)")
         return _main_cuda(args)
     if args.compile:
         import torch._inductor.config as inductor_config
