@@ -152,6 +152,49 @@ def test_cuda_graphs_are_refused_on_the_cpu_and_the_cost_falls_back_to_inductor(
     assert out["note"].startswith("cudagraphs: ModelError") and out["single"]["ms_per_frame"] > 0
 
 
+@pytest.mark.parametrize("capture", ["works", "fails"])
+def test_the_cuda_graph_step_is_traced_with_horns_rotation_returns_copies_and_turns_a_capture_failure_into_a_model_error(
+        capture, test_split, monkeypatch):
+    """The ``cudagraphs`` wrapper of :func:`compile_step`, on the CPU with ``torch.compile`` stood in for
+    (no GPU here): it compiles with ``mode="reduce-overhead"``, calls the compiled step inside
+    ``horn_rotations()`` (no SVD, whose error check syncs with the host), hands back copies of the
+    replay's outputs (the next replay overwrites them), and a capture failure becomes one ModelError."""
+    import mdgs.structure
+    from mdgs.models import State, compile_step
+
+    ref = MODELS["constant-twist"].from_data(test_split)
+    seen = {}
+
+    def fake_compile(fn, **kw):
+        seen.update(kw)
+
+        def replay(state, ctrl):
+            seen["horn"] = mdgs.structure._HORN
+            if capture == "fails":
+                raise RuntimeError("Cannot copy between CPU and CUDA tensors during CUDA graph capture unless ...")
+            seen["out"] = fn(state, ctrl)
+            return seen["out"]
+        return replay
+
+    monkeypatch.setattr(type(ref), "device", property(lambda self: torch.device("cuda")))
+    monkeypatch.setattr(torch, "compile", fake_compile)
+    compile_step(ref, "cudagraphs")
+    assert seen["mode"] == "reduce-overhead" and "horn" not in seen
+    ref.bind(test_split)
+    st = State(torch.from_numpy(test_split.x[:, 0]), torch.from_numpy(test_split.v[:, 0]))
+    ctrl = torch.from_numpy(test_split.ctrl[:, 0])
+    first = ref.step(st, ctrl)  # the first step of a binding runs eagerly (fills the scene's caches)
+    assert "horn" not in seen
+    if capture == "fails":
+        with pytest.raises(ModelError, match="cannot be captured as a CUDA graph.*use compile mode 'inductor'"):
+            ref.step(st, ctrl)
+    else:
+        out = ref.step(st, ctrl)
+        assert out.x is not seen["out"].x and out.v is not seen["out"].v  # copies, not the replay's buffers
+        torch.testing.assert_close(out.x, first.x, rtol=0, atol=0)
+    assert seen["horn"] is True and mdgs.structure._HORN is False  # Horn inside the call only
+
+
 def test_compiled_cost_falls_back_mode_by_mode_and_says_why(test_split, monkeypatch):
     """``compiled_cost``: a step that compiles neither ahead of time nor by torch.compile is timed eagerly and
     the result names both refusals; MuJoCo (C code) is timed as it is; and the ahead-of-time step it
