@@ -14,9 +14,9 @@ the CUDA-graph tests (MDGS, constant twist) have not yet run on a GPU.
 
 Tolerances: both devices compute in float32 with other kernels and summation orders (cuBLAS,
 atomic scatter-adds), so results agree to float32 round-off amplified through a few layers, not
-bit for bit. A one-step displacement or velocity may differ by 1e-3 of its largest entry (observed
-round-off is 1e-6..1e-5 relative; a misplaced buffer, a normalisation left on the CPU side or a
-wrong graph gives differences of order one); loss terms by 1e-3 relative; the position-MSE curve of
+bit for bit. A one-step displacement or velocity may differ by 1e-3 of its largest entry (float32
+round-off is 1e-7 relative per operation, so a few layers stay far below that; a misplaced buffer, a
+normalisation left on the CPU side or a wrong graph gives differences of order one); loss terms by 1e-3 relative; the position-MSE curve of
 a 10-frame rollout by 1e-2 relative (untrained models amplify round-off from frame to frame).
 """
 
