@@ -55,6 +55,8 @@ name = "mdgs"
     (GOOD + '[budget]\nselect = "best"\n', "select = 'best' is not one of"),
     (GOOD + '[budget]\nselect_frames = 1100\n', "needs select = \"rollout\""),
     (GOOD + '[budget]\nselect = "rollout"\nselect_frames = 1\n', "at least 2 frames"),
+    (GOOD + '[budget]\nema = 1\n', "ema = 1.0 must be from 0"),
+    (GOOD + '[budget]\nema = "0.99"\n', "should be of type int or float"),
     (GOOD + "[references]\nmotors = 1\n", "should be of type bool"),
 ])
 def test_malformed_study_file_is_one_sentence_and_exit_2(tmp_path, text, phrase):
@@ -149,6 +151,27 @@ def test_select_frames_trains_on_the_same_data_and_scores_longer_validation_traj
     assert info["select"] == "rollout" and info["select_frames"] == 150
     lv = load_split(out / "data" / f"{cell.scene.name}-valid150" / "valid.h5")
     assert lv.x.shape[:2] == (2, 150)
+
+
+def test_ema_changes_only_the_learned_cells_keys_and_trains_their_runs_with_it(tmp_path):
+    """``[budget] ema = D``: the learned cells' keys change (other weights are evaluated), the references'
+    do not, a study without it keeps the keys it had, and the cell's run trains with that decay (its
+    checkpoint keeps the optimiser's weights beside the average, which the cell evaluates)."""
+    from mdgs.study.runner import _cell_model, _dataset
+
+    budget = "\n[budget]\nepochs = 1\nmax_steps = 2\nbatch_size = 4\nvalid_max_pairs = 4\n"
+    text = GOOD.replace("seeds = [0]", "seeds = [0]\nsensitivity = 0") + budget
+    plain = load_study(_write(tmp_path, text))
+    ema = load_study(_write(tmp_path, text + "ema = 0.9\n"))
+    kp, ke = ({c.kind: c.key(s) for c in cells_of(s)} for s in (plain, ema))
+    assert kp["learned"] != ke["learned"] and kp["reference"] == ke["reference"]
+    assert all("ema" not in c.spec(plain).get("budget", {}) for c in cells_of(plain))
+    cell = next(c for c in cells_of(ema) if c.kind == "learned")
+    out = tmp_path / "out"
+    _, info = _cell_model(ema, out, cell, _dataset(ema, out, cell.scene), torch.device("cpu"), lambda e: None)
+    assert info["ema"] == 0.9
+    state = torch.load(out / "runs" / cell.key(ema) / "checkpoint.pt", weights_only=False)
+    assert state["train_fingerprint"]["ema"] == 0.9 and state["n_averaged"] == 2 and "trained_model" in state
 
 
 def test_a_trajectory_count_makes_its_own_data_and_cells_and_leaves_the_presets_keys(tmp_path):

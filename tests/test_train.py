@@ -663,3 +663,79 @@ def test_rollout_score_caps_failed_frames_at_the_position_variance(data):
 
     Fr = va.x.shape[1]
     assert rollout_score(Away.from_data(va), va, "cpu") == pytest.approx(cap * (Fr - 1) / Fr)  # frame 0 given
+
+
+def test_ema_evaluates_the_moving_average_of_the_optimisers_weights_and_resumes_exactly(data, tmp_path, monkeypatch):
+    """TrainConfig.ema: after every optimiser step the averaged weights move by ``w <- d w + (1 - d) w_k``
+    (recomputed here by hand from snapshots of the optimiser's weights); they are what the epoch's
+    one-step validation error measures and what load_run evaluates, while the optimiser's own weights,
+    kept beside them, train exactly as without averaging; a resumed run ends where an uninterrupted one
+    does; ema cannot change on resume, and a run from before the setting resumes as ema 0."""
+    import shutil
+
+    import mdgs.train.loop as loop
+    from mdgs.models import one_step_error
+    from mdgs.runs import RunError, load_run
+
+    snaps = []
+    real = loop._averaged
+
+    def recording(model, decay):
+        avg = real(model, decay)
+        if avg is None:
+            return None
+        update = avg.update_parameters
+
+        def record(m):
+            snaps.append({k: v.detach().clone() for k, v in m.named_parameters()})
+            update(m)
+
+        avg.update_parameters = record
+        return avg
+
+    monkeypatch.setattr(loop, "_averaged", recording)
+    d = 0.9
+    out = tmp_path / "ema"
+    train(_cfg(data, out, epochs=2, ema=d))
+    assert len(snaps) == 2 * 13  # one update per optimiser step (13 per epoch)
+    want = dict(snaps[0])
+    for s in snaps[1:]:
+        want = {k: d * want[k] + (1 - d) * s[k] for k in want}
+    state = torch.load(out / "checkpoint.pt", weights_only=False)
+    for k, v in want.items():
+        torch.testing.assert_close(state["model"][k], v, rtol=1e-5, atol=1e-7)
+        torch.testing.assert_close(state["trained_model"][k], snaps[-1][k], rtol=0, atol=0)
+    assert state["n_averaged"] == 26
+    model, _ = load_run(out, "cpu")
+    for k, v in model.named_parameters():
+        torch.testing.assert_close(v.detach(), want[k], rtol=1e-5, atol=1e-7)
+    hist = json.loads((out / "metrics.json").read_text())
+    va = load_split(data / "valid.h5")
+    assert one_step_error(model, va, "cpu", 64, 64) == pytest.approx(hist[-1]["valid_mse"], rel=1e-5)
+
+    plain = tmp_path / "plain"  # averaging changes nothing of what the optimiser does
+    train(_cfg(data, plain, epochs=2))
+    raw = torch.load(plain / "checkpoint.pt", weights_only=False)["model"]
+    for k in want:
+        torch.testing.assert_close(state["trained_model"][k], raw[k], rtol=1e-5, atol=1e-6)
+    assert max(float((state["model"][k] - raw[k]).abs().max()) for k in want) > 1e-4  # and the average is not them
+
+    part = tmp_path / "part"
+    train(_cfg(data, part, epochs=1, ema=d))
+    train(_cfg(data, part, epochs=2, ema=d))  # resumes at epoch 2
+    resumed = torch.load(part / "checkpoint.pt", weights_only=False)
+    assert resumed["n_averaged"] == 26
+    for key in ("model", "trained_model"):
+        for k in want:
+            torch.testing.assert_close(resumed[key][k], state[key][k], rtol=1e-4, atol=1e-5)
+
+    with pytest.raises(RunError, match="ema"):
+        train(_cfg(data, part, epochs=3, ema=0.99))
+    with pytest.raises(RunError, match="--ema 1"):
+        _cfg(data, tmp_path / "x", ema=1.0)
+    old = tmp_path / "old"
+    shutil.copytree(plain, old)
+    st = torch.load(old / "checkpoint.pt", weights_only=False)
+    del st["train_fingerprint"]["ema"]
+    torch.save(st, old / "checkpoint.pt")
+    assert train(_cfg(data, old, epochs=2)) == {}  # finished, resumable as ema 0: nothing to do, no error

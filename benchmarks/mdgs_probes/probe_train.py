@@ -2,7 +2,8 @@
 
     MDGS_PROBE_DATA=STUDY_OUT/data MDGS_PROBE_OUT=DIR python benchmarks/mdgs_probes/probe_train.py TAG SCENE SEED [key=value ...]
 
-Environment: EPOCHS (default 5), MODEL (default mdgs), LONG=1 adds the 1100-frame set. Appends one JSON
+Environment: EPOCHS (default 5), MODEL (default mdgs), LONG=1 adds the 1100-frame set, SELECT (default
+last: the epoch kept, ``TrainConfig.select``), EMA (default 0: the weights' moving-average decay, ``TrainConfig.ema``). Appends one JSON
 line to DIR/results.jsonl: t = 40 / 110 MSE (mean over trajectories that did not diverge, and how many),
 the one-step error of the model and of the same model with its state head zeroed (the constant-twist
 step in the same units), and each body's share of the t = 40 error. The page's probes ran on MDGS
@@ -21,7 +22,7 @@ import torch
 from mdgs.cli.train import parse_settings
 from mdgs.data.split import load_split
 from mdgs.evaluate.physics import hinge_anchors
-from mdgs.evaluate.rollout import rollout
+from mdgs.evaluate.rollout import rollout, rollout_score
 from mdgs.models import MODELS, one_step_error
 from mdgs.runs import load_run
 from mdgs.study.runner import _evaluate_set
@@ -36,8 +37,9 @@ OUT = os.environ["MDGS_PROBE_OUT"]
 run = os.path.join(OUT, "runs", f"{tag}-{scene}-s{seed}")
 cls = MODELS[model_name]
 t0 = time.time()
+select, ema = os.environ.get("SELECT", "last"), float(os.environ.get("EMA", 0))
 train(TrainConfig(data=data, out=run, model_name=model_name, epochs=epochs, batch_size=32, seed=seed, device="cpu",
-                  valid_max_pairs=512, model=cls.Config(**kw)))
+                  valid_max_pairs=512, select=select, ema=ema, model=cls.Config(**kw)), score=rollout_score)
 model, st = load_run(run, "cpu")
 test = load_split(data + "/test.h5")
 one = one_step_error(model, test, "cpu")
@@ -62,7 +64,8 @@ for o in np.unique(objn[mv]):
     e = ((r.x[:, f40] - test.x[:, f40]) ** 2)[:, sel].sum(axis=(1, 2)) / (mv.sum() * 3)  # contribution to the MSE
     per_obj[int(o)] = float(np.nanmean(e))
 out0 = {"one_zero": one_zero, "t40_by_object": per_obj}
-out = {"tag": tag, "scene": scene, "seed": seed, "settings": kw, "one_step": one, "secs": time.time() - t0}
+out = {"tag": tag, "scene": scene, "seed": seed, "settings": kw, "select": select, "ema": ema,
+       "evaluated_epoch": st["evaluated_epoch"], "one_step": one, "secs": time.time() - t0}
 for t in (40, 110):
     a = rep[f"pos_mse_t{t}"]
     ok = [x for x in a if x is not None]

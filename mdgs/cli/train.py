@@ -43,6 +43,9 @@ def train_cmd(
                                      help="With --select rollout*: score the rollouts on this folder's valid.h5 "
                                           "instead (e.g. validation trajectories 10x as long, from `mdgs generate "
                                           "--split valid --frames N`), to keep the epoch that stays stable."),
+    ema: float = typer.Option(0.0, "--ema", help="Decay of an exponential moving average of the weights, updated "
+                                                 "every step; the average is validated, selected and evaluated "
+                                                 "(e.g. 0.99: about the last 100 steps). 0: off."),
     device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),
 ) -> None:
     """Train a model on a generated dataset (MDGS: Adam, plateau scheduler, training noise; Appendix B.2)."""
@@ -65,7 +68,7 @@ def train_cmd(
         lr = cls.default_lr if lr is None else lr
         cfg = TrainConfig(data=str(data), out=str(out), model_name=model, epochs=epochs, batch_size=batch_size,
                           lr=lr, seed=seed, max_steps=max_steps, valid_max_pairs=valid_max_pairs, device=device,
-                          select=select, select_data=str(select_data or ""), model=mcfg)
+                          select=select, select_data=str(select_data or ""), ema=ema, model=mcfg)
     except ValueError as e:
         fail(f"--model {model}: {e}")
     except (ModelError, RunError) as e:

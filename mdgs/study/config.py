@@ -23,6 +23,7 @@ A study file has these tables (every key optional unless marked; defaults in the
     select = "last"                     # weights evaluated: last epoch, or best by "valid" / "rollout" / "rollout-or-start"
     select_frames = 0                   # rollout rules: score validation trajectories of this many frames
                                         # (0: the data's own; e.g. long_frames, to keep the epoch that is stable)
+    ema = 0.0                           # weights evaluated as their moving average with this decay (0: off)
 
     [[scenes]]
     name = "cubli-triple"               # a built-in scene, or
@@ -103,6 +104,7 @@ class Budget:
     valid_max_pairs: int = 0
     select: str = "last"
     select_frames: int = 0
+    ema: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -215,12 +217,15 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
 
     bt = _take(doc, "budget", dict, f, {})
     where = f"{f} [budget]"
-    _unknown(bt, {"epochs", "max_steps", "batch_size", "valid_max_pairs", "select", "select_frames"}, where)
+    _unknown(bt, {"epochs", "max_steps", "batch_size", "valid_max_pairs", "select", "select_frames", "ema"}, where)
     budget = Budget(epochs=_take(bt, "epochs", int, where, 30), max_steps=_take(bt, "max_steps", int, where, 0),
                     batch_size=_take(bt, "batch_size", int, where, 32),
                     valid_max_pairs=_take(bt, "valid_max_pairs", int, where, 0),
                     select=_take(bt, "select", str, where, "last"),
-                    select_frames=_take(bt, "select_frames", int, where, 0))
+                    select_frames=_take(bt, "select_frames", int, where, 0),
+                    ema=float(_take(bt, "ema", (int, float), where, 0.0)))
+    if not 0 <= budget.ema < 1:
+        raise StudyError(f"{where}: ema = {budget.ema} must be from 0 (off) up to, not including, 1 (e.g. 0.99)")
     if budget.select not in SELECT:
         raise StudyError(f"{where}: select = {budget.select!r} is not one of {', '.join(SELECT)}")
     if budget.select_frames and (budget.select_frames < 2 or not budget.select.startswith("rollout")):

@@ -83,9 +83,9 @@ class Cell:
              "long_trajectories": study.long_trajectories, "failure_factor": study.failure_factor}
         if study.trajectories:  # absent at the preset's count: keys of cells run before the setting existed hold
             d["trajectories"] = study.trajectories
-        if MODELS[self.model].learned:  # select absent at "last", select_frames at 0: earlier keys hold
+        if MODELS[self.model].learned:  # select absent at "last", select_frames and ema at 0: earlier keys hold
             d["budget"] = {k: v for k, v in asdict(study.budget).items()
-                           if not (k == "select" and v == "last") and not (k == "select_frames" and not v)}
+                           if not (k == "select" and v == "last") and not (k in ("select_frames", "ema") and not v)}
         if MODELS[self.model].revision:  # absent for revision 0: keys of cells run before revisions existed hold
             d["revision"] = MODELS[self.model].revision
         if self.kind == "sensitivity":  # revision 1: also on the long set (earlier lines are superseded)
@@ -340,7 +340,7 @@ def _cell_model(study: StudyConfig, out: Path, cell: Cell, data: Path, dev, prog
            if b.select_frames and not trained else "")
     cfg = TrainConfig(data=str(data), out=str(run), model_name=trainee.model, epochs=b.epochs,
                       batch_size=b.batch_size, seed=cell.seed, device=study.device, max_steps=b.max_steps,
-                      valid_max_pairs=b.valid_max_pairs, select=b.select, select_data=sel,
+                      valid_max_pairs=b.valid_max_pairs, select=b.select, select_data=sel, ema=b.ema,
                       model=tcls.Config(**dict(cell.settings)))
     t1 = time.perf_counter()
     if not trained:
@@ -357,6 +357,8 @@ def _cell_model(study: StudyConfig, out: Path, cell: Cell, data: Path, dev, prog
         train_info["select"], train_info["evaluated_epoch"] = b.select, state["evaluated_epoch"]
         if b.select_frames:
             train_info["select_frames"] = b.select_frames
+    if b.ema:
+        train_info["ema"] = b.ema
     if trainee is not cell:
         train_info["trained_as"] = {"model": trainee.model, "cell": trainee.key(study)}
     return model, train_info

@@ -112,6 +112,12 @@ class TrainConfig:
         ``[budget] select_frames``; ``mdgs generate --split valid --frames N`` writes one). ``""``
         (default): ``data``'s own. The one-step validation error (scheduler, ``select="valid"``) always
         uses ``data``'s.
+    ema
+        decay of an exponential moving average of the weights (Polyak averaging, updated after every
+        optimiser step: ``w_ema <- ema * w_ema + (1 - ema) * w``), 0 (default): off. With it the
+        averaged weights are the model: validated (scheduler), scored and selected after each epoch,
+        and evaluated; the optimiser trains its own weights as before. The window is about
+        ``1 / (1 - ema)`` steps (0.99: the last ~100).
     model
         the model's config (``MODELS[model_name].Config``); ``None``: its defaults.
         Settings the model takes from data are filled by its ``resolve_config``.
@@ -130,6 +136,7 @@ class TrainConfig:
     log_every: int = 10
     select: str = "last"
     select_data: str = ""
+    ema: float = 0.0
     model: Any = None
 
     def __post_init__(self):
@@ -144,6 +151,8 @@ class TrainConfig:
         if self.select_data and not self.select.startswith("rollout"):
             raise RunError(f"--select-data scores validation rollouts; it needs --select rollout or rollout-or-start, "
                            f"not {self.select!r}")
+        if not (isinstance(self.ema, float | int) and 0 <= self.ema < 1):
+            raise RunError(f"--ema {self.ema} must be a number from 0 (off) up to, not including, 1 (e.g. 0.99)")
         if not isinstance(self.seed, int) or not 0 <= self.seed < 2**63:
             raise RunError(f"--seed {self.seed} must be an integer from 0 to 2**63 - 1")
 
@@ -177,6 +186,14 @@ def _selected(history: list[dict], select: str, start_score: float | None = None
     if select == "rollout-or-start" and start_score is not None and start_score <= best[key]:
         return -1
     return best["epoch"]
+
+
+def _averaged(model, decay: float):
+    """The exponential moving average of ``model``'s weights and buffers (``TrainConfig.ema``), or None."""
+    if not decay:
+        return None
+    from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
+    return AveragedModel(model, multi_avg_fn=get_ema_multi_avg_fn(decay))  # buffers follow the model
 
 
 def starting_model(cls, mcfg, tr: SplitData, seed: int):
@@ -273,7 +290,8 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
             raise RunError(f"{out} holds a run trained on the scene partitioned into {state['data_identity']['n_nodes']} "
                            f"nodes, but {cfg.data} partitions it into {tr.identity()['n_nodes']} (another --refine); "
                            f"choose another --out or delete {ckpt_path}")
-        old = {"select": "last", **_with_absent(state["train_fingerprint"], cls.Config)}  # runs before select: last
+        # runs before select / ema: last, none
+        old = {"select": "last", "ema": 0.0, **_with_absent(state["train_fingerprint"], cls.Config)}
         if old != fp:
             diff = sorted(k for k in fp if old.get(k) != fp[k])
             diff += sorted(f"model.{k}" for k in fp["model"] if old.get("model", {}).get(k) != fp["model"][k])
@@ -286,10 +304,14 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
     model = starting_model(cls, mcfg, tr, cfg.seed).to(dev)
     step_model = dist_.wrap(_Losses(model), dev)
     opt, sched, when = model.optimizer(cfg.lr)
+    avg = _averaged(model, cfg.ema)
     history, steps_log, start = [], [], 0
     best_weights = None  # the selected epoch's weights (select other than "last"), kept in the checkpoint
     if state is not None:
-        model.load_state_dict(state["model"])
+        model.load_state_dict(state["trained_model"] if avg is not None else state["model"])
+        if avg is not None:
+            avg.module.load_state_dict(state["model"])
+            avg.n_averaged.fill_(state["n_averaged"])
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
         history, steps_log, start = state["history"], state["steps"], state["epoch"] + 1
@@ -333,6 +355,8 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
             opt.zero_grad()
             loss.backward()
             opt.step()
+            if avg is not None:
+                avg.update_parameters(model)
             if when == "step":
                 sched.step()
             vals = dist_.mean({k: v.item() for k, v in losses.items()})
@@ -345,22 +369,24 @@ def _train(cfg: TrainConfig, progress, tr: SplitData, va: SplitData, cls, dist_,
                 progress({"kind": "step", "epoch": epoch, "step": s + 1, "steps": n_steps, "loss": loss_val,
                           "losses": vals})
         train_s = time.perf_counter() - t0
-        val = one_step_error(model, va, dev, max(cfg.batch_size, 64), cfg.valid_max_pairs)
+        judged = model if avg is None else avg.module  # the weights validated, scored and kept
+        val = one_step_error(judged, va, dev, max(cfg.batch_size, 64), cfg.valid_max_pairs)
         if when == "epoch":
             sched.step(val)
         rec = {"epoch": epoch, **{f"train_{k}": v / n_steps for k, v in tot.items()},
                "valid_mse": val, "lr": opt.param_groups[0]["lr"], "steps": n_steps,
                "train_seconds": train_s}
         if cfg.select.startswith("rollout") and dist_.is_main:
-            rec["valid_rollout"] = score(model, scored, dev)
+            rec["valid_rollout"] = score(judged, scored, dev)
         rec["seconds"] = time.perf_counter() - t0
         history.append(rec)
         best = _selected(history, cfg.select, start_score) if dist_.is_main else None  # the rollout score is rank 0's
         if dist_.is_main and cfg.select != "last" and best == epoch:
-            best_weights = {k: v.detach().clone() for k, v in model.state_dict().items()}
+            best_weights = {k: v.detach().clone() for k, v in judged.state_dict().items()}
         if dist_.is_main:  # only rank 0 writes; the others wait so a resume sees a finished epoch
+            averaged = {} if avg is None else {"trained_model": model.state_dict(), "n_averaged": int(avg.n_averaged)}
             write_checkpoint(ckpt_path, {
-                "model_name": cls.name, "model": model.state_dict(), "opt": opt.state_dict(),
+                "model_name": cls.name, "model": judged.state_dict(), **averaged, "opt": opt.state_dict(),
                 "sched": sched.state_dict(), "epoch": epoch, "config": resolved, "train_fingerprint": fp,
                 "data_identity": tr.identity(), "has_contact": tr.has_contact, "history": history,
                 "steps": steps_log, "selected_epoch": best, "selected_model": best_weights,
