@@ -1,7 +1,7 @@
 """Where a single-trajectory rollout step of every model spends its time: arithmetic or overhead.
 
     python benchmarks/profile_step.py [--scene cubli-triple] [--models mdgs gns ...] [--frames 10] [--repeats 5]
-                                      [--compile] [--widths 100 50] [--device cuda]
+                                      [--compile [inductor|aot]] [--widths 100 50] [--device cuda]
 
 One run, this machine, CPU, one torch thread, batch 1 (one trajectory), untrained weights (the cost
 of a step does not depend on training), on a ``tiny`` dataset of the scene written to a temporary
@@ -33,7 +33,9 @@ cat, stack, nonzero, unique, masked_select), error checks (``_linalg_check_error
 GPU time of those kernels and its share of the wall time (a small share: the step is launch-bound).
 
 ``--compile`` profiles the ``torch.compile``d step (:func:`mdgs.models.compile_step`, compiled with
-inductor's per-kernel profiling on): each fused C++ kernel of the compiled graph
+inductor's per-kernel profiling on); ``--compile aot`` the step compiled ahead of time (AOTInductor, the
+same per-kernel profiling, no dynamo guards at call time; models whose step does not export are a row
+saying so). Each fused C++ kernel of the compiled graph
 (``graph_<k>_cpp_fused_<ops>``) counts as arithmetic, as do the library calls it makes
 (``aoti_torch_cpu_<op>_out``, classified by ``<op>``); the compiled graph's own entry
 (``## Call CompiledFxGraph``: its C++ launcher and buffer allocations), dynamo's guard check
@@ -197,7 +199,8 @@ def main() -> None:
     ap.add_argument("--models", nargs="*", default=None, help="registry names (default: all)")
     ap.add_argument("--frames", type=int, default=10, help="steps per profiled rollout")
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--compile", action="store_true", help="profile the torch.compile'd step (module docstring)")
+    ap.add_argument("--compile", nargs="?", const="inductor", default=None, choices=("inductor", "aot"),
+                    help="profile the compiled step: inductor (torch.compile, the default) or aot (module docstring)")
     ap.add_argument("--widths", nargs="*", type=int, default=[], help="MDGS also at these hidden widths")
     ap.add_argument("--device", default="cpu", help="cpu, or cuda: kernels per step and GPU-busy share instead "
                                                   "of the op table (MuJoCo is left out there)")
@@ -216,7 +219,7 @@ def main() -> None:
         inductor_config.fx_graph_cache = False  # a cached graph compiled without those entries would hide them
     tr, te = tiny_splits(args.scene)
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, batch 1, CPU, 1 torch thread; per step, medians of "
-          f"{args.repeats} rollouts of {args.frames} steps" + ("; compiled steps" if args.compile else ""))
+          f"{args.repeats} rollouts of {args.frames} steps" + (f"; compiled steps ({args.compile})" if args.compile else ""))
     print(f"{'model':22s}{'ms/step':>9s}{'prof ms':>9s}{'op ms':>8s}{'arith %':>9s}{'overhead ms':>13s}")
     for label, model in registry_models(args.models or list(MODELS), tr, tuple(args.widths)):
         if isinstance(model, str):
@@ -224,8 +227,15 @@ def main() -> None:
             continue
         if args.compile and not label.startswith("mujoco"):
             model.bind(te)
-            compile_step(model)
-        r = profile_model(model, te, args.frames, args.repeats)
+            try:
+                compile_step(model, args.compile)
+                r = profile_model(model, te, args.frames, args.repeats)
+            except Exception as e:  # noqa: BLE001 - a step that does not compile is a row saying so
+                print(f"{label:22s} failed to compile ({args.compile}): {type(e).__name__}: "
+                      f"{str(e).splitlines()[0][:100] if str(e) else ''}")
+                continue
+        else:
+            r = profile_model(model, te, args.frames, args.repeats)
         print(f"{label:22s}{r['ms']:>9.3f}{r['prof_ms']:>9.3f}{r['op_ms']:>8.3f}{100 * r['arith']:>9.0f}"
               f"{r['overhead_ms']:>13.3f}")
         print("    top ops (ms/step): " + ", ".join(f"{'*' if is_arithmetic(k) else ''}{k.removeprefix('aten::')} {t:.3f}"
@@ -243,7 +253,7 @@ def _main_cuda(args) -> None:
     tr, te = tiny_splits(args.scene)
     names = [n for n in (args.models or list(MODELS)) if n != "mujoco"]
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, batch 1, {torch.cuda.get_device_name(dev)}; per step, medians "
-          f"of {args.repeats} rollouts of {args.frames} steps" + ("; compiled steps (inductor)" if args.compile else ""))
+          f"of {args.repeats} rollouts of {args.frames} steps" + (f"; compiled steps ({args.compile})" if args.compile else ""))
     print(f"{'model':22s}{'ms/step':>9s}{'prof ms':>9s}{'kernels':>9s}{'GPU ms':>9s}{'GPU busy %':>12s}")
     for label, model in registry_models(names, tr, tuple(args.widths), dev):
         if isinstance(model, str):
@@ -252,7 +262,7 @@ def _main_cuda(args) -> None:
         try:
             if args.compile:
                 model.bind(te)
-                compile_step(model)
+                compile_step(model, args.compile)
             r = profile_model_cuda(model, te, args.frames, args.repeats)
         except Exception as e:  # noqa: BLE001 - one model that fails here is a row saying so; the table goes on
             print(f"{label:22s} failed: {type(e).__name__}: {str(e).splitlines()[0][:100] if str(e) else ''}")
