@@ -739,3 +739,14 @@ def test_ema_evaluates_the_moving_average_of_the_optimisers_weights_and_resumes_
     del st["train_fingerprint"]["ema"]
     torch.save(st, old / "checkpoint.pt")
     assert train(_cfg(data, old, epochs=2)) == {}  # finished, resumable as ema 0: nothing to do, no error
+
+
+def test_ema_from_the_cli_says_what_it_evaluates_and_a_bad_decay_is_exit_2(data, tmp_path):
+    res = runner.invoke(app, ["train", "--data", str(data), "--out", str(tmp_path / "r"), "--epochs", "1",
+                              "--max-steps", "2", "--batch-size", "4", "--valid-max-pairs", "8", "--ema", "0.9"])
+    assert res.exit_code == 0, res.output
+    assert "evaluates the moving average of the weights (--ema 0.9)" in res.output
+    assert torch.load(tmp_path / "r" / "checkpoint.pt", weights_only=False)["n_averaged"] == 2
+    res = runner.invoke(app, ["train", "--data", str(data), "--out", str(tmp_path / "bad"), "--ema", "1.5"])
+    assert res.exit_code == 2 and "Traceback" not in res.output and "--ema 1.5 must be" in res.output, res.output
+    assert not (tmp_path / "bad").exists()

@@ -100,7 +100,9 @@ def train_cmd(
                            f"better on valid than every epoch, best {key} {best[key]:.4g})")
             else:
                 typer.echo(f"{out}: evaluates the weights of epoch {best['epoch'] + 1} (--select {select}: "
-                           f"{key} {best[key]:.4g})")
+                           f"{key} {best[key]:.4g})" + (f", their moving average (--ema {ema})" if ema else ""))
+        elif ema:
+            typer.echo(f"{out}: evaluates the moving average of the weights (--ema {ema})")
     else:
         typer.echo(f"{out}: already holds {done.get('finished', '?')} finished epochs (--epochs {epochs}); "
                    "raise --epochs to continue it")
