@@ -130,6 +130,18 @@ def test_joint_twist_references_add_the_projected_rows_and_leave_the_ratio_base_
         load_study(_write(tmp_path, GOOD + "[references]\njoints = 1\n"))
 
 
+def _changes_only_learned_keys(tmp_path, text: str, line: str, name: str):
+    """The study ``text`` with the budget ``line`` added: its learned cells' keys differ from those of
+    ``text`` alone, its references' do not, and without the line no cell's budget holds ``name`` (so
+    studies run before the setting existed keep their keys). Returns the study with the line."""
+    plain = load_study(_write(tmp_path, text))
+    other = load_study(_write(tmp_path, text + line))
+    kp, ko = ({c.kind: c.key(s) for c in cells_of(s)} for s in (plain, other))
+    assert kp["learned"] != ko["learned"] and kp["reference"] == ko["reference"]
+    assert all(name not in c.spec(plain).get("budget", {}) for c in cells_of(plain))
+    return other
+
+
 def test_select_frames_trains_on_the_same_data_and_scores_longer_validation_trajectories(tmp_path):
     """``[budget] select_frames = N``: the learned cells' keys change (another rule), the references' do
     not, a study without it keeps the keys it had, and a cell trains with its rollout rule scored on the
@@ -139,11 +151,7 @@ def test_select_frames_trains_on_the_same_data_and_scores_longer_validation_traj
 
     budget = "\n[budget]\nepochs = 1\nmax_steps = 1\nbatch_size = 4\nvalid_max_pairs = 4\nselect = \"rollout\"\n"
     text = GOOD.replace("seeds = [0]", "seeds = [0]\nlong_trajectories = 2\nsensitivity = 0") + budget
-    plain = load_study(_write(tmp_path, text))
-    longer = load_study(_write(tmp_path, text + "select_frames = 150\n"))
-    kp, kl = ({c.kind: c.key(s) for c in cells_of(s)} for s in (plain, longer))
-    assert kp["learned"] != kl["learned"] and kp["reference"] == kl["reference"]
-    assert all("select_frames" not in c.spec(plain).get("budget", {}) for c in cells_of(plain))
+    longer = _changes_only_learned_keys(tmp_path, text, "select_frames = 150\n", "select_frames")
     cell = next(c for c in cells_of(longer) if c.kind == "learned")
     out = tmp_path / "out"
     data = _dataset(longer, out, cell.scene)
@@ -161,11 +169,7 @@ def test_ema_changes_only_the_learned_cells_keys_and_trains_their_runs_with_it(t
 
     budget = "\n[budget]\nepochs = 1\nmax_steps = 2\nbatch_size = 4\nvalid_max_pairs = 4\n"
     text = GOOD.replace("seeds = [0]", "seeds = [0]\nsensitivity = 0") + budget
-    plain = load_study(_write(tmp_path, text))
-    ema = load_study(_write(tmp_path, text + "ema = 0.9\n"))
-    kp, ke = ({c.kind: c.key(s) for c in cells_of(s)} for s in (plain, ema))
-    assert kp["learned"] != ke["learned"] and kp["reference"] == ke["reference"]
-    assert all("ema" not in c.spec(plain).get("budget", {}) for c in cells_of(plain))
+    ema = _changes_only_learned_keys(tmp_path, text, "ema = 0.9\n", "ema")
     cell = next(c for c in cells_of(ema) if c.kind == "learned")
     out = tmp_path / "out"
     _, info = _cell_model(ema, out, cell, _dataset(ema, out, cell.scene), torch.device("cpu"), lambda e: None)
