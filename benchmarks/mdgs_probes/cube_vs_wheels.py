@@ -1,0 +1,66 @@
+"""Where the Cubli's rollout error sits at t = 40, body by body: the cube's pose, or each wheel's spin
+relative to the cube (docs/mdgs-experiments.md, "Where the Cubli's error is left").
+
+    python benchmarks/mdgs_probes/cube_vs_wheels.py DATA_FOLDER [LABEL=RUN_FOLDER ...]
+
+DATA_FOLDER holds a cubli-triple ``test.h5`` (e.g. a study's ``data/cubli-triple``); each RUN_FOLDER is a
+trained run (a study's ``runs/<cell>``), evaluated with the weights its selection rule kept. For constant
+twist, constant twist + motors + joints and each run, per test trajectory: the position MSE at t = 40
+(10^-3 m^2), the angle (degrees) between the cube's rolled-out and true rotation, the distance (mm)
+between its rolled-out and true element centroid, and for each wheel the angle between its rolled-out
+and true rotation *relative to the cube* (its spin error alone). Rotations are Kabsch fits of each
+body's element centroids (:func:`mdgs.structure.kabsch`); ``*`` marks a trajectory with a brake
+command (above 5 N m) before t = 40.
+"""
+import sys
+
+import numpy as np
+import torch
+
+from mdgs.data.split import load_split
+from mdgs.evaluate.metrics import frame_of
+from mdgs.evaluate.rollout import rollout
+from mdgs.models import MODELS
+from mdgs.runs import load_run
+from mdgs.structure import kabsch
+
+torch.set_num_threads(1)
+d = load_split(sys.argv[1] + "/test.h5")
+ct = MODELS["constant-twist"]
+models = {"constant twist": ct(ct.Config()), "constant twist + motors + joints": ct(ct.Config(motors=True, joints=True))}
+for arg in sys.argv[2:]:
+    label, _, path = arg.partition("=")
+    models[label] = load_run(path, "cpu")[0]
+t = frame_of(40, d.x.shape[1])
+brake = np.abs(d.ctrl[:, :t]).max((1, 2)) > 5.0
+mj = d.mj_model()
+body = np.asarray(d.static["node_body"])
+moving = sorted(set(body[d.moving].tolist()))
+cube = next(b for b in moving if mj.body_parentid[b] == 0)  # the free body; the wheels hang from it
+wheels = [b for b in moving if b != cube]
+ref = torch.as_tensor(d.static["node_centroid"], dtype=torch.float64)
+seg, n = torch.as_tensor(body, dtype=torch.long), int(body.max()) + 1
+
+
+def angle(Ra: torch.Tensor, Rb: torch.Tensor) -> np.ndarray:
+    """Degrees of the rotation taking Ra to Rb, [...]."""
+    c = ((Ra.transpose(-1, -2) @ Rb).diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2
+    return torch.rad2deg(torch.arccos(c.clamp(-1, 1))).numpy()
+
+
+Rt, tt = kabsch(ref, torch.as_tensor(d.x[:, t], dtype=torch.float64), seg, n)
+names = [mj.body(b).name for b in wheels]
+print(f"t = 40 is frame {t}; cube: body {mj.body(cube).name!r}; wheels: {names}; '*': a brake command before t = 40")
+for name, m in models.items():
+    r = rollout(m, d)
+    e = r.pos_mse[:, t] * 1e3
+    Rp, tp = kabsch(ref, torch.as_tensor(r.x[:, t], dtype=torch.float64), seg, n)
+    rot = angle(Rp[:, cube], Rt[:, cube])
+    shift = (tp[:, cube] - tt[:, cube]).norm(dim=-1).numpy() * 1e3
+    spin = [angle(Rp[:, cube].transpose(-1, -2) @ Rp[:, w], Rt[:, cube].transpose(-1, -2) @ Rt[:, w]) for w in wheels]
+    print(f"\n{name}: mean MSE {np.nanmean(e):.3g}; cube rotation error median {np.median(rot[~brake]):.1f} deg "
+          f"without a brake, {np.median(rot[brake]):.1f} with one")
+    print("  traj   MSE   cube deg  cube mm  " + "  ".join(f"{s[:12]:>12s}" for s in names))
+    for i in range(len(e)):
+        print(f"  {i:2d}{'*' if brake[i] else ' '} {e[i]:6.3f}  {rot[i]:7.2f}  {shift[i]:7.2f}  "
+              + "  ".join(f"{s[i]:12.1f}" for s in spin))
