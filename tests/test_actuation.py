@@ -419,3 +419,54 @@ def test_mdgs_gravity_prior_adds_free_fall_over_one_frame_to_every_moving_body(s
     np.testing.assert_allclose(tw[True].vc[:, still].numpy(), tw[False].vc[:, still].numpy(), atol=1e-6)
     with pytest.raises(ValueError, match="gravity_prior must be true or false"):
         cls.Config(gravity_prior="yes")
+
+
+def test_twist_integrator_reads_each_objects_outputs_on_its_own_scale_and_starts_from_the_same_prior(splits):
+    """``integrator="twist"`` with ``object_scales``: each object's output scales are its own spread of
+    twist increments in the training split (recomputed here from the data: the Cubli's cube turns far
+    less per frame than its flywheels, so its angular scale is smaller); an output of one on every node
+    changes each object's angular velocity by exactly its own scale; and the untrained model (zero
+    output) with the motors' prior steps to the same twists as the rigid integrator's untrained model
+    with it (both: constant twist plus the prior's rigid part; 1e-4 rad/s, float32)."""
+    from mdgs.models.integrators import twist_space
+
+    tr, te = splits["cubli-triple"]
+    m = MODELS["mdgs"].from_data(tr, MODELS["mdgs"].Config(integrator="twist", actuation="prior"))
+    m.bind(te)
+    c, sc = m.config, m.scene_on("cpu")
+    pairs = tr.pairs()
+    a = twist(torch.from_numpy(tr.x[pairs[:, 0], pairs[:, 1]]).double(), torch.from_numpy(tr.v[pairs[:, 0], pairs[:, 1]]).double(),
+              sc.obj, sc.n_obj, sc.mass.double())
+    b = twist(torch.from_numpy(tr.x[pairs[:, 0], pairs[:, 1] + 1]).double(),
+              torch.from_numpy(tr.v[pairs[:, 0], pairs[:, 1] + 1]).double(), sc.obj, sc.n_obj, sc.mass.double())
+    moving = sorted(set(sc.obj[~sc.static].tolist()))
+    dw_std = {o: float((b.omega - a.omega)[:, o].std()) for o in moving}
+    bare = MODELS["mdgs"].from_data(tr, MODELS["mdgs"].Config(integrator="twist")).config  # no prior
+    assert len(c.dw_scales) == len(c.dvc_scales) == len(bare.dw_scales) == sc.n_obj
+    cube = drives_of(te.mj_model(), te.static["node_body"], te.static["node_centroid"]).drives[0].parent
+    wheels = [o for o in moving if o != cube]
+    assert bare.dw_scales[cube] < min(bare.dw_scales[o] for o in wheels)
+    for o in moving:  # without a prior: each body's spread of angular increments in the data
+        assert bare.dw_scales[o] == pytest.approx(dw_std[o], rel=0.05), (o, bare.dw_scales[o], dw_std[o])
+    assert c.dw_scales == bare.dw_scales  # the data's spreads, whatever the priors
+
+    bt = batch_of(te, te.pairs(0)[:4], "cpu")
+    svc, sw = m.twist_scales(sc, "cpu")
+    out = torch.cat([torch.ones_like(bt.x), torch.zeros_like(bt.x)], -1)
+    x1, v1 = twist_space(bt.x, bt.v, out, sc, dt=c.dt, dvc_scale=svc, dw_scale=sw)
+    t0, t1 = (twist(x.double(), v.double(), sc.obj, sc.n_obj, sc.mass.double()) for x, v in ((bt.x, bt.v), (x1, v1)))
+    for o in moving:
+        np.testing.assert_allclose((t1.omega - t0.omega)[:, o].numpy(), c.dw_scales[o], rtol=1e-4)
+
+    rigid = MODELS["mdgs"].from_data(tr, MODELS["mdgs"].Config(actuation="prior"))
+    rigid.bind(te)
+    ctrl = torch.tensor([[3.0, -2.0, 1.0]]).expand_as(bt.ctrl)
+    steps = {}
+    with torch.no_grad():
+        for name, sim in (("twist", m), ("rigid", rigid)):
+            p = sim(sc, bt.x, bt.v, sim.node_controls(ctrl), ctrl=ctrl)
+            steps[name] = twist(p.x.double(), p.v.double(), sc.obj, sc.n_obj, sc.mass.double())
+    for k in ("vc", "omega"):
+        got, want = getattr(steps["twist"], k)[:, moving], getattr(steps["rigid"], k)[:, moving]
+        np.testing.assert_allclose(got.numpy(), want.numpy(), atol=1e-4)
+    assert float((steps["rigid"].omega - t0.omega)[:, wheels].abs().max()) > 1.0  # the prior did turn the wheels

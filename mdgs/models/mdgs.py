@@ -50,7 +50,7 @@ from mdgs.losses import constraint_loss, huber_loss, mse_loss, pair_mse, speeds_
 from mdgs.models.base import Batch, ModelError, Simulator, State
 from mdgs.models.integrators import INTEGRATORS
 from mdgs.models.layers import GCN
-from mdgs.rigid import advance, perturb, twist
+from mdgs.rigid import advance, perturb, project, twist
 from mdgs.structure import align_with_pose
 
 __all__ = ["MDGSConfig", "ModelConfig", "VARIANTS", "Prediction", "MDGS", "MDGSNoConstraint",
@@ -98,6 +98,9 @@ class MDGSConfig:
         "direct" (the paper's literal Eq. 9); see docs/ambiguities.md.
     dvc_scale, dw_scale : m/s and rad/s, output scales of the "twist" integrator (spread of the
         objects' velocity and angular velocity increments in the training data).
+    dvc_scales, dw_scales : per object, the same (``object_scales`` with the "twist" integrator: each
+        object's own spread of its increments, as ``dv_scales`` for the rigid integrator, floored at
+        ``OBJECT_SCALE_FLOOR`` of the global one); empty otherwise.
     dt : frame interval, s (used by "rigid", "twist" and "euler"); set from the data.
     cst_weight : weight of L_cst in the total loss (paper: summed, i.e. 1).
     dense_max_nodes : object graphs (and contact graphs) up to this many nodes propagate densely:
@@ -115,8 +118,9 @@ class MDGSConfig:
     object_scales : scale g's outputs and L_mse per object (``dx_scales``, ``dv_scales``: each
         object's own spread of the rigid integrator's targets, floored at ``OBJECT_SCALE_FLOOR`` = 5 %
         of the global spread) instead of one global ``dx_scale``, ``dv_scale``, so that a slow body (a cube)
-        weighs as much as a fast one (its flywheels). Rigid integrator only (the others use the
-        global scales whatever this says).
+        weighs as much as a fast one (its flywheels). With the "twist" integrator also g's outputs per
+        object (``dvc_scales``, ``dw_scales``), so that a cube's turn is not read on its flywheels' scale.
+        "euler" and "direct" use the global scales whatever this says.
     The three defaults above are not the paper's (it has none of them): each was measured with 3
     seeds (``studies/mdgs-ablation.toml``, docs/mdgs-experiments.md); ``False`` for all three
     gives the paper's method.
@@ -194,6 +198,8 @@ class MDGSConfig:
     object_scales: bool = True
     dx_scales: tuple[float, ...] = ()
     dv_scales: tuple[float, ...] = ()
+    dvc_scales: tuple[float, ...] = ()
+    dw_scales: tuple[float, ...] = ()
 
     def __post_init__(self):
         for name in ("hidden", "layers", "global_dim"):
@@ -416,15 +422,25 @@ class MDGS(Simulator):
         # twist: g has no position output; a velocity error weighs like the position error it makes
         # over half a frame. Otherwise: the spread of g's position target.
         dx_auto = dt / 2 * float(dv.std()) if cfg.integrator == "twist" else float(dx.std())
-        if cfg.object_scales and cfg.integrator == "rigid" and not cfg.dx_scales:  # per object: each object's own spread, floored
+        if cfg.object_scales and cfg.integrator in ("rigid", "twist") and not cfg.dx_scales:
+            # per object: each object's own spread, floored
             scene = SceneGraph.from_static(d.static, has_contact=d.has_contact)
             om = np.asarray(scene.obj)[d.moving]
             gx, gv = max(float(dx.std()), 1e-12), max(float(dv.std()), 1e-12)
             sx, sv = [1.0] * scene.n_obj, [1.0] * scene.n_obj
             for o in np.unique(om):
-                sx[o] = max(float(dx[:, om == o].std()), OBJECT_SCALE_FLOOR * gx)
                 sv[o] = max(float(dv[:, om == o].std()), OBJECT_SCALE_FLOOR * gv)
+                # twist: no position output; a velocity error weighs like the position error of half a frame
+                sx[o] = (dt / 2 * sv[o] if cfg.integrator == "twist"
+                         else max(float(dx[:, om == o].std()), OBJECT_SCALE_FLOOR * gx))
             kw["dx_scales"], kw["dv_scales"] = tuple(sx), tuple(sv)
+            if cfg.integrator == "twist":  # g's outputs per object: its own twist increments' spread
+                svc, sw = [1.0] * scene.n_obj, [1.0] * scene.n_obj
+                gvc, gw = max(float(dvc.std()), 1e-12), max(float(dw.std()), 1e-12)
+                for k, o in enumerate(np.unique(om)):  # dvc, dw: [P, S_moving, 3] in this order
+                    svc[o] = max(float(dvc[:, k].std()), OBJECT_SCALE_FLOOR * gvc)
+                    sw[o] = max(float(dw[:, k].std()), OBJECT_SCALE_FLOOR * gw)
+                kw["dvc_scales"], kw["dw_scales"] = tuple(svc), tuple(sw)
         if cfg.dx_scale == 1.0:
             kw["dx_scale"] = max(dx_auto, 1e-12)
         if cfg.dv_scale == 1.0:
@@ -484,6 +500,19 @@ class MDGS(Simulator):
             obj = scene.obj.to(dev)
             self._scenes[key] = tuple(torch.tensor(s, dtype=torch.float32, device=dev)[obj].unsqueeze(-1)
                                       for s in (c.dx_scales, c.dv_scales))
+        return self._scenes[key]
+
+    def twist_scales(self, scene: SceneGraph, dev) -> tuple:
+        """``(dvc_scale, dw_scale)`` of the "twist" integrator: floats, or with ``object_scales`` per-node
+        ``[N, 1]`` tensors (m/s, rad/s; each node carries its object's)."""
+        c = self.config
+        if not c.dvc_scales:
+            return c.dvc_scale, c.dw_scale
+        key = ("twist_scales", str(dev))
+        if key not in self._scenes:
+            obj = scene.obj.to(dev)
+            self._scenes[key] = tuple(torch.tensor(s, dtype=torch.float32, device=dev)[obj].unsqueeze(-1)
+                                      for s in (c.dvc_scales, c.dw_scales))
         return self._scenes[key]
 
     def node_controls(self, ctrl: torch.Tensor) -> torch.Tensor:
@@ -651,21 +680,30 @@ class MDGS(Simulator):
         c = self.config
         dev = x.device
         sx, sv = self.scales(scene, dev)
+        svc, sw = self.twist_scales(scene, dev)
+        priors = []  # the priors' node velocity increments over dt, [B, N, 3] or [N, 3]
         if self._drives and ctrl is not None and c.actuation in ("step", "prior", "coupled"):
             # the pose enters without gradient (its Kabsch SVD has none for symmetric bodies; only an
             # unrolled training step, whose x carries one, would differentiate it)
             response = coupled_motor_accelerations if c.actuation == "coupled" else motor_accelerations
-            dv_act = c.dt * response(x.detach(), ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev),
-                                                scene.n_obj)
-            out = out + torch.cat([torch.zeros_like(dv_act), dv_act / sv], -1)
+            priors.append(c.dt * response(x.detach(), ctrl, self._drives, scene.ref_shape.to(dev),
+                                          scene.obj.to(dev), scene.n_obj))
         if self._gravity is not None:  # free fall over dt on every moving node
             key = ("gravity", str(dev))
             if key not in self._scenes:
                 self._scenes[key] = self._gravity.to(dev)
             dv_g = (c.dt * self._scenes[key]) * scene.moving(dev).unsqueeze(-1).to(out.dtype)  # [N, 3]
-            out = out + torch.cat([torch.zeros_like(dv_g), dv_g / sv], -1)
+            priors.append(dv_g)
+        if priors and c.integrator == "twist":  # g reads twist increments: add the priors' rigid part
+            seg, mass = scene.obj.to(dev), scene.mass.to(dev)
+            tw = twist(x.detach(), v.detach(), seg, scene.n_obj, mass)
+            dvc_p, dw_p = project(sum(priors).expand_as(x), x.detach(), tw, seg, scene.n_obj, mass)  # [B, S, 3]
+            out = out + torch.cat([dw_p[:, seg].to(out.dtype) / sw, dvc_p[:, seg].to(out.dtype) / svc], -1)
+        elif priors:
+            for p in priors:  # one at a time, as before the twist integrator took them
+                out = out + torch.cat([torch.zeros_like(p), p / sv], -1)
         x1, v1 = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx, dv_scale=sv,
-                                           dvc_scale=c.dvc_scale, dw_scale=c.dw_scale)
+                                           dvc_scale=svc, dw_scale=sw)
         pose = None
         if c.structure:
             x1, *pose = align_with_pose(x1, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj,
