@@ -8,9 +8,12 @@ trained run (a study's ``runs/<cell>``), evaluated with the weights its selectio
 twist, constant twist + motors + joints and each run, per test trajectory: the position MSE at t = 40
 (10^-3 m^2), the angle (degrees) between the cube's rolled-out and true rotation, the distance (mm)
 between its rolled-out and true element centroid, and for each wheel the angle between its rolled-out
-and true rotation *relative to the cube* (its spin error alone). Rotations are Kabsch fits of each
-body's element centroids (:func:`mdgs.structure.kabsch`); ``*`` marks a trajectory with a brake
-command (above 5 N m) before t = 40.
+and true rotation *relative to the cube* (its spin error alone), and the MSE the same rollout would
+have with the cube's pose exact (``cube exact``: every body placed by its rolled-out pose relative to
+the cube, composed with the cube's true pose): what a perfect model of the cube's motion would leave,
+the wheels' own errors. Rotations are Kabsch fits of each body's element centroids
+(:func:`mdgs.structure.kabsch`); ``*`` marks a trajectory with a brake command (above 5 N m) before
+t = 40.
 """
 import sys
 
@@ -58,9 +61,16 @@ for name, m in models.items():
     rot = angle(Rp[:, cube], Rt[:, cube])
     shift = (tp[:, cube] - tt[:, cube]).norm(dim=-1).numpy() * 1e3
     spin = [angle(Rp[:, cube].transpose(-1, -2) @ Rp[:, w], Rt[:, cube].transpose(-1, -2) @ Rt[:, w]) for w in wheels]
-    print(f"\n{name}: mean MSE {np.nanmean(e):.3g}; cube rotation error median {np.median(rot[~brake]):.1f} deg "
-          f"without a brake, {np.median(rot[brake]):.1f} with one")
-    print("  traj   MSE   cube deg  cube mm  " + "  ".join(f"{s[:12]:>12s}" for s in names))
+    # every body's rolled-out pose relative to the cube, placed on the cube's true pose
+    Rrel = Rp[:, cube].transpose(-1, -2).unsqueeze(1) @ Rp  # [T, S, 3, 3]
+    trel = (Rp[:, cube].transpose(-1, -2).unsqueeze(1) @ (tp - tp[:, [cube]]).unsqueeze(-1)).squeeze(-1)
+    Ro = Rt[:, cube].unsqueeze(1) @ Rrel
+    to = (Rt[:, cube].unsqueeze(1) @ trel.unsqueeze(-1)).squeeze(-1) + tt[:, [cube]]
+    xo = (Ro[:, seg] @ ref.unsqueeze(-1)).squeeze(-1) + to[:, seg]  # [T, N, 3]
+    exact = ((xo.numpy() - d.x[:, t]) ** 2)[:, d.moving].mean(axis=(1, 2)) * 1e3
+    print(f"\n{name}: mean MSE {np.nanmean(e):.3g}, with the cube's pose exact {np.nanmean(exact):.3g}; cube "
+          f"rotation error median {np.median(rot[~brake]):.1f} deg without a brake, {np.median(rot[brake]):.1f} with one")
+    print("  traj   MSE  cube exact  cube deg  cube mm  " + "  ".join(f"{s[:12]:>12s}" for s in names))
     for i in range(len(e)):
-        print(f"  {i:2d}{'*' if brake[i] else ' '} {e[i]:6.3f}  {rot[i]:7.2f}  {shift[i]:7.2f}  "
+        print(f"  {i:2d}{'*' if brake[i] else ' '} {e[i]:6.3f}  {exact[i]:9.3f}  {rot[i]:7.2f}  {shift[i]:7.2f}  "
               + "  ".join(f"{s[i]:12.1f}" for s in spin))
