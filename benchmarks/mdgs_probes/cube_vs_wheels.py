@@ -19,23 +19,13 @@ import sys
 
 import numpy as np
 import torch
+from _brakes import split_models_and_brakes
 
-from mdgs.data.split import load_split
-from mdgs.evaluate.metrics import frame_of
 from mdgs.evaluate.rollout import rollout
-from mdgs.models import MODELS
-from mdgs.runs import load_run
 from mdgs.structure import kabsch
 
 torch.set_num_threads(1)
-d = load_split(sys.argv[1] + "/test.h5")
-ct = MODELS["constant-twist"]
-models = {"constant twist": ct(ct.Config()), "constant twist + motors + joints": ct(ct.Config(motors=True, joints=True))}
-for arg in sys.argv[2:]:
-    label, _, path = arg.partition("=")
-    models[label] = load_run(path, "cpu")[0]
-t = frame_of(40, d.x.shape[1])
-brake = np.abs(d.ctrl[:, :t]).max((1, 2)) > 5.0
+d, models, t, brake = split_models_and_brakes(sys.argv[1:])
 mj = d.mj_model()
 body = np.asarray(d.static["node_body"])
 moving = sorted(set(body[d.moving].tolist()))

@@ -493,26 +493,24 @@ class MDGS(Simulator):
     def scales(self, scene: SceneGraph, dev) -> tuple:
         """``(dx_scale, dv_scale)``: floats, or with ``object_scales`` per-node ``[N, 1]`` tensors (m, m/s)."""
         c = self.config
-        if not (c.object_scales and c.dx_scales):
-            return c.dx_scale, c.dv_scale
-        key = ("scales", str(dev))
-        if key not in self._scenes:
-            obj = scene.obj.to(dev)
-            self._scenes[key] = tuple(torch.tensor(s, dtype=torch.float32, device=dev)[obj].unsqueeze(-1)
-                                      for s in (c.dx_scales, c.dv_scales))
-        return self._scenes[key]
+        return self._per_node(scene, dev, "scales", (c.dx_scales, c.dv_scales), (c.dx_scale, c.dv_scale))
 
     def twist_scales(self, scene: SceneGraph, dev) -> tuple:
         """``(dvc_scale, dw_scale)`` of the "twist" integrator: floats, or with ``object_scales`` per-node
         ``[N, 1]`` tensors (m/s, rad/s; each node carries its object's)."""
         c = self.config
-        if not c.dvc_scales:
-            return c.dvc_scale, c.dw_scale
-        key = ("twist_scales", str(dev))
+        return self._per_node(scene, dev, "twist_scales", (c.dvc_scales, c.dw_scales), (c.dvc_scale, c.dw_scale))
+
+    def _per_node(self, scene: SceneGraph, dev, name: str, per_object: tuple, whole: tuple) -> tuple:
+        """``per_object`` (tuples of one scale per object) as per-node ``[N, 1]`` tensors on ``dev`` (cached
+        under ``name``), or ``whole`` (the global floats) without ``object_scales`` or per-object values."""
+        if not (self.config.object_scales and per_object[0]):
+            return whole
+        key = (name, str(dev))
         if key not in self._scenes:
             obj = scene.obj.to(dev)
             self._scenes[key] = tuple(torch.tensor(s, dtype=torch.float32, device=dev)[obj].unsqueeze(-1)
-                                      for s in (c.dvc_scales, c.dw_scales))
+                                      for s in per_object)
         return self._scenes[key]
 
     def node_controls(self, ctrl: torch.Tensor) -> torch.Tensor:
