@@ -189,7 +189,8 @@ def _selected(history: list[dict], select: str, start_score: float | None = None
 
 
 def _averaged(model, decay: float):
-    """The exponential moving average of ``model``'s weights and buffers (``TrainConfig.ema``), or None."""
+    """The exponential moving average of ``model``'s weights (``TrainConfig.ema``; its buffers follow the
+    model's), or None."""
     if not decay:
         return None
     from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
