@@ -1,4 +1,4 @@
-"""The motors' known loads: as node forces on free bodies, as the joint's response with its parent held, and as the whole tree's response.
+"""The motors' known loads: as node forces on free bodies, as the joint's response with its parent held, as the whole tree's response; and the whole tree's forward dynamics.
 
 MDGS's inputs carry a scene's actuator controls as per-node signs (``+ctrl_k`` on the body that
 actuator ``k`` drives, ``-ctrl_k`` on its parent; :func:`mdgs.data.split.control_map`): the
@@ -42,7 +42,15 @@ exactly, every parent recoiling and every joint passing the load on (Newton-Eule
 constraints; its docstring). Exact for the motors alone, it is the worse prior where floors and gravity
 hold the parents (docs/mdgs-experiments.md, "The whole tree's response").
 
-No form has the velocity terms (gyroscopic, Coriolis), which do not depend on the control.
+**The whole tree's forward dynamics** (the same function given the node velocities): everything
+else a rigid tree on a floor feels joins the motors - gravity, the gyroscopic torques, the joints'
+velocity terms and the floor's contact with box corners and cylinder rims, sticking or sliding with
+Coulomb friction (its docstring).
+In free flight it is MuJoCo's ``qacc`` to 1e-9 (tests/test_dynamics.py); on the floor it is a rigid,
+inelastic contact model instead of MuJoCo's soft one. Stepped once per frame it is the
+"rigid tree" reference (:mod:`mdgs.models.references`) and MDGS's ``actuation = "dynamics"`` prior.
+
+The other forms have no velocity terms (gyroscopic, Coriolis), which do not depend on the control.
 Actuators that are not motors (position or velocity servos, activation dynamics),
 that drive a tendon, a site or a ball or free joint, or whose body's rotation its elements do
 not fix, are listed in ``skipped`` and contribute nothing; bodies without elements are left out
@@ -56,7 +64,20 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from mdgs.rigid import twist
 from mdgs.structure import fixes_rotation, kabsch, segment_mean
+
+#: Forward dynamics' floor contact (:func:`coupled_motor_accelerations`): a box corner closer to the floor than
+#: this (m) holds; MuJoCo's soft contacts rest a few tenths of a millimetre deep.
+CONTACT_GAP = 2e-3
+#: Compliance of a held corner (m/s^2 per N): small against the bodies' 1/mass, it only makes four
+#: corners of a face (twelve rows for six degrees of freedom) share the load.
+CONTACT_COMPLIANCE = 1e-6
+#: Passes of the active-set search that lets go of corners the floor would pull.
+CONTACT_PASSES = 4
+#: Points on each rim of a colliding cylinder that stand in for it as corners (a 16-gon's rim is
+#: within 2 % of the radius of the circle's).
+RIM_POINTS = 16
 
 __all__ = ["Drive", "DriveSet", "Link", "drives_of", "actuation_forces", "motor_accelerations",
            "coupled_motor_accelerations"]
@@ -122,6 +143,12 @@ class DriveSet:
     its mass centre in its body frame (``body_ipos``); links : one :class:`Link` per moving object
     whose joint :func:`coupled_motor_accelerations` can write (the others are left free there, and named,
     with the reason, in ``unlinked``); fixed : [S] objects that do not move (the world body's elements).
+    For the forward dynamics (:func:`coupled_motor_accelerations` given velocities): gravity : [3] the
+    MJCF's ``opt.gravity``; corners : [K, 3] the corners of every colliding box geom of a moving
+    object (and ``RIM_POINTS`` on each rim of a colliding cylinder), in its body frame, corner_obj : [K]
+    that object, corner_friction : [K] the sliding friction of the corner's geom against the floor
+    (the larger of the two, as MuJoCo pairs them); floor : the height of the world's highest colliding
+    plane whose normal is +z (None without one; then no corners).
     """
 
     drives: list[Drive] = field(default_factory=list)
@@ -133,6 +160,11 @@ class DriveSet:
     links: list[Link] = field(default_factory=list)
     unlinked: list[str] = field(default_factory=list)
     fixed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    gravity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    corners: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    corner_obj: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    corner_friction: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    floor: float | None = None
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __bool__(self) -> bool:
@@ -203,7 +235,36 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
         if b != 0 and np.linalg.cond(inertia[k]) < 1e12:
             inv_inertia[k] = np.linalg.inv(inertia[k])
         posable[k] = fixes_rotation(node_centroid[node_body == b])
-    out = DriveSet(mass=mass, inertia=inertia, inv_inertia=inv_inertia, com=com, fixed=bodies == 0)
+    out = DriveSet(mass=mass, inertia=inertia, inv_inertia=inv_inertia, com=com, fixed=bodies == 0,
+                   gravity=np.array(m.opt.gravity, float))
+    corners, corner_obj, corner_mu, floors = [], [], [], []
+    signs = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], float)
+    for g in range(m.ngeom):
+        if not (int(m.geom_contype[g]) or int(m.geom_conaffinity[g])):
+            continue
+        gq = np.zeros(9)
+        mujoco.mju_quat2Mat(gq, m.geom_quat[g])
+        gq = gq.reshape(3, 3)
+        b = int(m.geom_bodyid[g])
+        if b == 0 and int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE) and np.allclose(gq[:, 2], [0, 0, 1]):
+            floors.append((float(m.geom_pos[g][2]), float(m.geom_friction[g][0])))
+        elif b != 0 and b in obj_of and int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_BOX):
+            corners.append(m.geom_pos[g] + (signs * m.geom_size[g]) @ gq.T)
+            corner_obj += [obj_of[b]] * 8
+            corner_mu += [float(m.geom_friction[g][0])] * 8
+        elif b != 0 and b in obj_of and int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_CYLINDER):
+            r, h = m.geom_size[g][:2]
+            ang = 2 * np.pi * np.arange(RIM_POINTS) / RIM_POINTS
+            rim = np.stack([r * np.cos(ang), r * np.sin(ang), np.zeros_like(ang)], -1)
+            pts = np.concatenate([rim + [0, 0, h], rim - [0, 0, h]])
+            corners.append(m.geom_pos[g] + pts @ gq.T)
+            corner_obj += [obj_of[b]] * len(pts)
+            corner_mu += [float(m.geom_friction[g][0])] * len(pts)
+    if floors:
+        out.floor, floor_mu = max(floors)
+        if corners:  # MuJoCo's friction of a pair: the larger of the two geoms'
+            out.corners, out.corner_obj = np.concatenate(corners), np.array(corner_obj, int)
+            out.corner_friction = np.maximum(np.array(corner_mu), floor_mu)
     name = lambda kind, i: mujoco.mj_id2name(m, kind, i) or f"#{i}"  # noqa: E731
     kinds = {int(mujoco.mjtJoint.mjJNT_HINGE): "hinge", int(mujoco.mjtJoint.mjJNT_SLIDE): "slide",
              int(mujoco.mjtJoint.mjJNT_BALL): "ball", int(mujoco.mjtJoint.mjJNT_FREE): "free"}
@@ -373,7 +434,8 @@ def _rows(S: int, B: int, like: torch.Tensor, c: int, p: int, D: torch.Tensor, a
 
 
 def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
-                                seg: torch.Tensor, n_obj: int) -> torch.Tensor:
+                                seg: torch.Tensor, n_obj: int, v: torch.Tensor | None = None,
+                                mass: torch.Tensor | None = None, dt: float | None = None) -> torch.Tensor:
     """Node accelerations [B, N, 3] (m/s^2) of the motors with every joint coupled: MuJoCo's ``M^-1 qfrc_actuator``.
 
     Unlike :func:`motor_accelerations` (the driven joint alone, its parent held) the parent recoils and
@@ -390,18 +452,45 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     a_p(A))`` at the anchor ``A``), ``J`` the rows a link fixes (hinge: the anchor's relative
     acceleration and the relative angular acceleration across ``n``; slide: the relative angular
     acceleration and the anchor's across ``n``; ball: the anchor's; weld: all six; free: none) and the
-    world's elements held still. Velocity terms (gyroscopic, Coriolis, the joints' centripetal terms)
-    are left out, as they do not depend on the controls. Node accelerations are
+    world's elements held still. Without velocities, velocity terms (gyroscopic, Coriolis, the joints'
+    centripetal terms) are left out, as they do not depend on the controls. Node accelerations are
     ``a_s + alpha_s x (x_i - x_s)``. Objects named in ``drives.unlinked`` move freely; every moving
     object needs a positive mass and inertia or a link that fixes it. Shapes as
     :func:`motor_accelerations`; float64 inside, returned in ``x``'s dtype.
+
+    **Forward dynamics** (given the node velocities ``v`` [B, N, 3], the element ``mass`` [N] and the frame
+    ``dt``): the same system with everything else a rigid tree on a floor feels, so that the result
+    is MuJoCo's ``qacc`` up to its contact model. The right-hand side gains gravity ``M_s g`` on every
+    moving object and the gyroscopic torque ``-w_s x (I_s^w w_s)``; each constraint row gains its
+    velocity term (a hinge or ball anchor: ``-(w_c x (w_c x r_c) - w_p x (w_p x r_p))``; a hinge's
+    two cross-axis rows ``p . (w_p x (w_c - w_p))``, the axis turning with the parent; slides without
+    theirs). The twists ``w_s`` are the least-squares fits of :func:`mdgs.rigid.twist`. Floor contact:
+    every corner of a colliding box, and each of ``RIM_POINTS`` points on either rim of a colliding
+    cylinder (``drives.corners``; spheres, capsules and meshes are not seen), that is within ``CONTACT_GAP`` of the floor, or
+    would reach it within ``dt``, is held: while it moves across the floor slower than friction could
+    stop it within the frame (``mu |g| dt``, ``mu`` = ``drives.corner_friction``) it sticks, three rows
+    holding its acceleration at ``-w x (w x r) - u / dt`` (``u`` its velocity: an inelastic, sticking
+    impact over one frame); faster, it slides: only the normal row is held and the floor's push ``f_n``
+    comes with Coulomb friction ``mu f_n`` against the slip (the row's column in the upper right of
+    the system carries it, so the system is not symmetric). The rows have a compliance of
+    ``CONTACT_COMPLIANCE`` so that four corners of a face (twelve rows for six degrees of freedom)
+    share the load in the least-squares way (the held corners of a batch are gathered into as many
+    slots as its most held). A corner whose floor would have to pull it down is let go and the system
+    solved again (``CONTACT_PASSES`` passes, an active-set search). Not modelled: the friction cone of a
+    sticking corner (it holds whatever tangential force sticking takes), rolling and torsional
+    friction, joint limits, damping and springs, and contact with any other geom (the Cubli's wall and
+    block, rotational-center's posts).
     """
-    if not drives:
+    dynamic = v is not None
+    if not drives and not dynamic:
         return torch.zeros_like(x)
     dev, f64 = x.device, torch.float64
     T = drives.tensors(dev)
     xd, seg = x.to(f64), seg.to(dev)
     R, t = kabsch(ref.to(dev, f64), xd, seg, n_obj)  # [B, S, 3, 3], [B, S, 3]
+    if dynamic:
+        tw = twist(xd, v, seg, n_obj, mass.to(dev))
+        w = tw.omega  # [B, S, 3]
     B, S = x.shape[0], n_obj
     xs = (R @ T["com"].unsqueeze(-1)).squeeze(-1) + t  # mass centres [B, S, 3]
     fixed = torch.as_tensor(drives.fixed, device=dev)
@@ -426,39 +515,108 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             return _rows(S, B, xd, c, p, n)
         return _rows(S, B, xd, c, p, n, A - xs[:, c], A - xs[:, p] if p >= 0 else None)
 
-    J = []
+    J, rhs = [], []  # constraint rows [B, k, 6S] and their right-hand sides [B, k]
+    zero3 = xd.new_zeros(B, 3)
     for s in torch.nonzero(fixed).flatten().tolist():  # the world's elements stay put
         J.append(torch.eye(6 * S, dtype=f64, device=dev)[6 * s: 6 * s + 6].expand(B, 6, 6 * S))
+        rhs.append(xd.new_zeros(B, 6))
     world = eye3.expand(B, 3, 3)
     rate = {}  # child object -> its joint's rate row
     for lk in drives.links:
         c, p = lk.child, lk.parent
         A = world_of(p, lk.anchor, point=True)[:, 0]
         rc, rp = A - xs[:, c], (A - xs[:, p] if p >= 0 else None)
+        wc = w[:, c] if dynamic else zero3
+        wp = w[:, p] if dynamic and p >= 0 else zero3
         if lk.kind in ("hinge", "ball", "weld"):
             J.append(_rows(S, B, xd, c, p, world, rc, rp))
+            rp0 = rp if rp is not None else zero3
+            rhs.append(-(torch.linalg.cross(wc, torch.linalg.cross(wc, rc, dim=-1), dim=-1)
+                         - torch.linalg.cross(wp, torch.linalg.cross(wp, rp0, dim=-1), dim=-1)))
         if lk.kind in ("slide", "weld"):
             J.append(_rows(S, B, xd, c, p, world))
+            rhs.append(xd.new_zeros(B, 3))
         if lk.kind == "hinge":
-            J.append(_rows(S, B, xd, c, p, world_of(p, lk.perp)))
+            D = world_of(p, lk.perp)  # [B, 2, 3], turning with the parent
+            J.append(_rows(S, B, xd, c, p, D))
+            rhs.append((D * torch.linalg.cross(wp, wc - wp, dim=-1).unsqueeze(1)).sum(-1))
         if lk.kind == "slide":
             J.append(_rows(S, B, xd, c, p, world_of(p, lk.perp), rc, rp))
+            rhs.append(xd.new_zeros(B, 2))
         if lk.kind in ("hinge", "slide"):
             rate[c] = joint_row(c, p, lk.kind, world_of(p, lk.axis), A)  # [B, 1, 6S]
             if lk.armature > 0:
                 M = M + lk.armature * rate[c].transpose(-1, -2) @ rate[c]
-    u = _motor_forces(ctrl.to(dev, f64), T)  # [B, D]
     F = xd.new_zeros(B, 6 * S)
-    for k, dr in enumerate(drives.drives):
-        g = rate.get(dr.child)
-        if g is None:  # a child left out of the links: its own frame
-            g = joint_row(dr.child, dr.parent, dr.kind, world_of(dr.child, dr.axis),
-                          world_of(dr.child, dr.anchor, point=True)[:, 0])
-        F = F + u[:, k: k + 1] * g[:, 0]
+    if drives:
+        u = _motor_forces(ctrl.to(dev, f64), T)  # [B, D]
+        for k, dr in enumerate(drives.drives):
+            g = rate.get(dr.child)
+            if g is None:  # a child left out of the links: its own frame
+                g = joint_row(dr.child, dr.parent, dr.kind, world_of(dr.child, dr.axis),
+                              world_of(dr.child, dr.anchor, point=True)[:, 0])
+            F = F + u[:, k: k + 1] * g[:, 0]
+    if dynamic:  # gravity and the gyroscopic torques; then the floor's corners
+        moving = (~fixed).to(f64).view(1, S, 1)
+        grav = torch.as_tensor(drives.gravity, dtype=f64, device=dev)
+        Iw = ang  # [B, S, 3, 3]
+        gyro = -torch.linalg.cross(w, (Iw @ w.unsqueeze(-1)).squeeze(-1), dim=-1)
+        F = F + (moving * torch.cat([T["mass"].view(1, S, 1) * grav.expand(B, S, 3), gyro], -1)).reshape(B, 6 * S)
+    C0 = sum(j.shape[1] for j in J)
+    contact = dynamic and drives.floor is not None and len(drives.corner_obj) > 0
+    if contact:
+        obj = torch.as_tensor(drives.corner_obj, device=dev)
+        P = (R[:, obj] @ torch.as_tensor(drives.corners, dtype=f64, device=dev).unsqueeze(-1)).squeeze(-1) \
+            + t[:, obj]  # [B, K, 3] corners in the world
+        uP = tw.vc[:, obj] + torch.linalg.cross(w[:, obj], P - tw.c[:, obj], dim=-1)  # their velocities
+        h = P[..., 2] - drives.floor
+        active = (h < CONTACT_GAP) | (h + dt * uP[..., 2].clamp_max(0.0) < CONTACT_GAP)  # [B, K]
+        arm = P - xs[:, obj]
+        rows, crhs = [], []
+        for k, o in enumerate(drives.corner_obj.tolist()):
+            rows.append(_rows(S, B, xd, o, -1, world, arm[:, k]))
+            wk = w[:, o]
+            crhs.append(-torch.linalg.cross(wk, torch.linalg.cross(wk, arm[:, k], dim=-1), dim=-1) - uP[:, k] / dt)
+        Jc, rc_ = torch.cat(rows, 1).view(B, -1, 3, 6 * S), torch.cat(crhs, -1).view(B, -1, 3)  # per corner
+        # sliding: faster across the floor than friction could stop within the frame
+        mu = torch.as_tensor(drives.corner_friction, dtype=f64, device=dev)  # [K]
+        ut = uP[..., :2]
+        speed = ut.norm(dim=-1)
+        slide = speed > mu * float(np.linalg.norm(drives.gravity)) * dt  # [B, K]
+        uhat = ut / speed.clamp_min(torch.finfo(f64).tiny).unsqueeze(-1)
+        # a sliding corner's z column carries the friction it feels: -mu |f_n| along its slip
+        fric = Jc[:, :, 2] - mu.view(1, -1, 1) * (uhat[..., :1] * Jc[:, :, 0] + uhat[..., 1:] * Jc[:, :, 1])
+        Cc = torch.cat([Jc[:, :, :2], torch.where(slide.unsqueeze(-1), fric, Jc[:, :, 2]).unsqueeze(2)], 2)
+        rows_on = torch.stack([~slide, ~slide, torch.ones_like(slide)], -1)  # [B, K, 3]
     Jm = torch.cat(J, 1) if J else xd.new_zeros(B, 0, 6 * S)
-    C = Jm.shape[1]
-    K = torch.cat([torch.cat([M, Jm.transpose(-1, -2)], -1),
-                   torch.cat([Jm, xd.new_zeros(B, C, C)], -1)], 1)
-    z = torch.linalg.solve(K, torch.cat([F, xd.new_zeros(B, C)], -1))[:, :6 * S].view(B, S, 6)
+    b0 = torch.cat(rhs, -1) if rhs else xd.new_zeros(B, 0)
+    for _ in range(CONTACT_PASSES if contact else 1):
+        if contact:  # the held corners first, as many slots as the batch's most held corners
+            order = torch.argsort((~active).to(torch.int8), dim=-1, stable=True)
+            n_on = max(int(active.sum(-1).max()), 1)
+            sel = order[:, :n_on]  # [B, n_on]
+            on = (torch.gather(active, 1, sel).unsqueeze(-1)
+                  & torch.gather(rows_on, 1, sel.view(B, n_on, 1).expand(-1, -1, 3))).to(f64).view(B, 3 * n_on)
+            idx = sel.view(B, n_on, 1, 1).expand(-1, -1, 3, 6 * S)
+            Jsel = torch.gather(Jc, 1, idx).reshape(B, 3 * n_on, 6 * S)
+            Csel = torch.gather(Cc, 1, idx).reshape(B, 3 * n_on, 6 * S)
+            rsel = torch.gather(rc_, 1, sel.view(B, n_on, 1).expand(-1, -1, 3)).reshape(B, 3 * n_on)
+            Jall = torch.cat([Jm, Jsel * on.unsqueeze(-1)], 1)
+            Call = torch.cat([Jm, Csel * on.unsqueeze(-1)], 1)
+            ball = torch.cat([b0, rsel * on], -1)
+            diag = torch.cat([xd.new_zeros(B, C0), torch.where(on > 0, -CONTACT_COMPLIANCE, 1.0)], -1)
+        else:
+            Jall, Call, ball, diag = Jm, Jm, b0, xd.new_zeros(B, C0)
+        K = torch.cat([torch.cat([M, Call.transpose(-1, -2)], -1),
+                       torch.cat([Jall, torch.diag_embed(diag)], -1)], 1)
+        sol = torch.linalg.solve(K, torch.cat([F, ball], -1))
+        if not contact:
+            break
+        lz = sol[:, 6 * S + C0:].view(B, -1, 3)[..., 2]  # the floor's push on each held corner is -lz
+        pulls = torch.zeros_like(active).scatter(1, sel, (lz > 0) & (on.view(B, -1, 3)[..., 2] > 0))
+        if not bool(pulls.any()):
+            break
+        active = active & ~pulls
+    z = sol[:, :6 * S].view(B, S, 6)
     acc = z[:, seg, :3] + torch.linalg.cross(z[:, seg, 3:], xd - xs[:, seg], dim=-1)
     return acc.to(x.dtype)

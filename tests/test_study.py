@@ -16,6 +16,7 @@ import torch
 from typer.testing import CliRunner
 
 from mdgs.cli import app
+from mdgs.models import MODELS
 from mdgs.study import StudyError, cells_of, load_study, read_results
 from mdgs.study.tables import build_tables
 
@@ -128,6 +129,21 @@ def test_joint_twist_references_add_the_projected_rows_and_leave_the_ratio_base_
     assert _ratio_cell([run], [joints, twist_], "test", 40) == "0.5"
     with pytest.raises(StudyError, match="joints"):
         load_study(_write(tmp_path, GOOD + "[references]\njoints = 1\n"))
+
+
+def test_rigid_tree_reference_is_one_more_cell_per_scene_and_earlier_cells_keep_their_keys(tmp_path):
+    plain = load_study(_write(tmp_path, GOOD + "[references]\nmotors = true\njoints = true\n"))
+    study = load_study(_write(tmp_path, GOOD + "[references]\nmotors = true\njoints = true\nrigid_tree = true\n"))
+    old = {k.key(plain) for k in cells_of(plain)}
+    extra = [c for c in cells_of(study) if c.key(study) not in old]
+    assert [(c.kind, c.model, c.label, dict(c.settings)) for c in extra] == [
+        ("reference", "constant-twist", "rigid tree + joints", {"dynamics": True, "joints": True})]
+    assert old <= {c.key(study) for c in cells_of(study)}  # a committed study without it resumes unchanged
+    ct = MODELS["constant-twist"]
+    from mdgs.evaluate import reference_label
+    assert reference_label(ct(ct.Config(**dict(extra[0].settings)))) == extra[0].label
+    with pytest.raises(StudyError, match="rigid_tree"):
+        load_study(_write(tmp_path, GOOD + "[references]\nrigid_tree = 1\n"))
 
 
 def _changes_only_learned_keys(tmp_path, text: str, line: str, name: str):

@@ -11,11 +11,12 @@ from mdgs.runs import load_run
 def split_models_and_brakes(argv: list[str]):
     """``argv`` = ``[DATA_FOLDER, LABEL=RUN_FOLDER, ...]`` -> ``(test split, {label: model}, frame of t = 40,
     [T] bool: a command above 5 N m before t = 40)``; the models are constant twist, constant twist + motors +
-    joints and each run, evaluated with the weights its selection rule kept."""
+    joints, the rigid tree + joints and each run, evaluated with the weights its selection rule kept."""
     d = load_split(argv[0] + "/test.h5")
     ct = MODELS["constant-twist"]
     models = {"constant twist": ct(ct.Config()),
-              "constant twist + motors + joints": ct(ct.Config(motors=True, joints=True))}
+              "constant twist + motors + joints": ct(ct.Config(motors=True, joints=True)),
+              "rigid tree + joints": ct(ct.Config(dynamics=True, joints=True))}
     for arg in argv[1:]:
         label, _, path = arg.partition("=")
         models[label] = load_run(path, "cpu")[0]

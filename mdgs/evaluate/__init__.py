@@ -93,6 +93,8 @@ def reference_label(model: Simulator) -> str:
         return f"mujoco dt x{model.config.dt_factor}"
     if model.name == "constant-twist":
         c = model.config
+        if c.dynamics:
+            return "rigid tree" + (" + joints" if c.joints else "")
         motors = " + coupled motors" if c.motors and c.coupled else " + motors" if c.motors else ""
         return "constant twist" + motors + (" + joints" if c.joints else "")
     return model.name.replace("-", " ")

@@ -65,7 +65,7 @@ CUBLI_NOISE = 4e-4
 #: output noise on it a thousandfold. The small study's bodies all lie above it (0.097-1.4).
 OBJECT_SCALE_FLOOR = 0.05
 #: What MDGS knows of a scene's motors (``actuation``, :mod:`mdgs.actuation`).
-ACTUATION = ("none", "force", "step", "prior", "coupled")
+ACTUATION = ("none", "force", "step", "prior", "coupled", "dynamics")
 #: Node features z_i (``features``): the paper's [x || v || k], or "local" (module docstring).
 FEATURES = ("paper", "local")
 #: The one-step loss (``loss``): Eq. (10), its Huber form, or each pair relative to doing nothing.
@@ -131,7 +131,10 @@ class MDGSConfig:
         :func:`mdgs.actuation.motor_accelerations`, is added to g's increment, so g learns only
         what the recoil, contacts and coupling add; F as in the paper), "step" (both), "coupled"
         (as "prior" with the motors' response of the whole tree, the parents recoiling,
-        :func:`mdgs.actuation.coupled_motor_accelerations`).
+        :func:`mdgs.actuation.coupled_motor_accelerations`), "dynamics" (as "prior" with the whole
+        tree's forward dynamics: motors, gravity, velocity terms and floor contact with friction at box
+        corners, the same function given the velocities; g learns what that one-step-per-frame
+        rigid tree misses, and the "rigid tree" reference is what it simulates untrained).
     gravity_prior : add the scene's gravity over ``dt`` (``g dt``, MJCF ``opt.gravity``) to the
         velocity increment of every moving node, as ``actuation = "prior"`` adds the motors' response,
         so g learns what contacts and joints add to free fall instead of free fall itself. The
@@ -240,6 +243,8 @@ class MDGSConfig:
             raise ValueError(f"gravity_prior must be true or false, got {self.gravity_prior!r}")
         if not isinstance(self.self_weight, bool):
             raise ValueError(f"self_weight must be true or false, got {self.self_weight!r}")
+        if self.gravity_prior and self.actuation == "dynamics":
+            raise ValueError("actuation = \"dynamics\" already adds gravity; set gravity_prior = false with it")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -680,7 +685,11 @@ class MDGS(Simulator):
         sx, sv = self.scales(scene, dev)
         svc, sw = self.twist_scales(scene, dev)
         priors = []  # the priors' node velocity increments over dt, [B, N, 3] or [N, 3]
-        if self._drives and ctrl is not None and c.actuation in ("step", "prior", "coupled"):
+        if c.actuation == "dynamics" and ctrl is not None:  # the whole tree's forward dynamics over dt
+            seg, mass = scene.obj.to(dev), scene.mass.to(dev)
+            priors.append(c.dt * coupled_motor_accelerations(x.detach(), ctrl, self._drives, scene.ref_shape.to(dev),
+                                                             seg, scene.n_obj, v=v.detach(), mass=mass, dt=c.dt))
+        elif self._drives and ctrl is not None and c.actuation in ("step", "prior", "coupled"):
             # the pose enters without gradient (its Kabsch SVD has none for symmetric bodies; only an
             # unrolled training step, whose x carries one, would differentiate it)
             response = coupled_motor_accelerations if c.actuation == "coupled" else motor_accelerations

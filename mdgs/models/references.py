@@ -11,7 +11,11 @@ Both meet the :class:`~mdgs.models.base.Simulator` contract and have nothing to 
   joints") every step is projected onto the scene's MJCF joints (:func:`mdgs.joints.project_joints`,
   the same projection MDGS applies to its simulated steps), so hinged bodies stay hinged: it is
   what an MDGS whose network outputs zero simulates, and the reference that shows what training
-  adds to MDGS.
+  adds to MDGS. With ``dynamics=True`` ("rigid tree") the bodies take the whole tree's forward
+  dynamics instead (motors, gravity, velocity terms, floor contact with friction at box corners and
+  cylinder rims; :func:`mdgs.actuation.coupled_motor_accelerations` given the velocities): a
+  hand-written simulator of the scene's MJCF at one semi-implicit Euler step per frame, and what an
+  MDGS with ``actuation="dynamics"`` simulates untrained.
 - :class:`MuJoCoReference` (``mujoco``): the physics engine that made the data, replaying
   each test trajectory from its recorded initial state under the recorded controls, with the
   timestep ``dt_factor`` times the dataset's (``substeps / dt_factor`` steps per frame). At
@@ -48,18 +52,27 @@ class ConstantTwistConfig:
         the label gains "+ coupled motors".
     joints : project every step onto the scene's joints (:func:`mdgs.joints.project_joints`, as
         MDGS's ``joints``); the label gains "+ joints".
+    dynamics : the whole tree's forward dynamics instead of the motors' response alone: motors,
+        gravity, the velocity terms and floor contact with friction at box corners
+        (:func:`mdgs.actuation.coupled_motor_accelerations` given the velocities), integrated by
+        semi-implicit Euler over the frame; the label is "rigid tree" (a hand-written, one-step-per-frame
+        simulator of the scene's MJCF, without MuJoCo's contact model).
     """
 
     motors: bool = False
     joints: bool = False
     coupled: bool = False
+    dynamics: bool = False
 
     def __post_init__(self):
-        for k in ("motors", "joints", "coupled"):
+        for k in ("motors", "joints", "coupled", "dynamics"):
             if not isinstance(getattr(self, k), bool):
                 raise ValueError(f"{k} must be true or false, got {getattr(self, k)!r}")
         if self.coupled and not self.motors:
             raise ValueError("coupled is a form of the motors' response; set motors = true with it")
+        if self.dynamics and (self.motors or self.coupled):
+            raise ValueError("dynamics already holds the motors (the whole tree's response); "
+                             "set motors = false and coupled = false with it")
 
 
 class ConstantTwist(Simulator):
@@ -76,7 +89,7 @@ class ConstantTwist(Simulator):
         self._scene = SceneGraph.from_static(split.static, has_contact=split.has_contact)
         self._dt = float(split.frame_dt)
         self._drives = (drives_of(split.mj_model(), split.static["node_body"], split.static["node_centroid"])
-                        if self.config.motors else DriveSet())
+                        if self.config.motors or self.config.dynamics else DriveSet())
         self._joints = (joints_of(split.mj_model(), split.static["node_body"], split.static["node_centroid"])
                         if self.config.joints else JointSet())
 
@@ -86,9 +99,13 @@ class ConstantTwist(Simulator):
         seg, mass = sc.obj.to(x.device), sc.mass.to(x.device)
         tw = twist(x, v, seg, sc.n_obj, mass)
         vc, w = tw.vc, tw.omega
-        if self._drives:  # + the motors' response (parents held, or the whole tree's) over the frame
-            response = coupled_motor_accelerations if self.config.coupled else motor_accelerations
-            acc = response(x, ctrl, self._drives, sc.ref_shape.to(x.device), seg, sc.n_obj)
+        if self.config.dynamics or self._drives:  # + the forces' velocity change over the frame
+            if self.config.dynamics:  # the whole tree's forward dynamics
+                acc = coupled_motor_accelerations(x, ctrl, self._drives, sc.ref_shape.to(x.device), seg, sc.n_obj,
+                                                  v=v, mass=mass, dt=self._dt)
+            else:  # the motors' response (parents held, or the whole tree's)
+                response = coupled_motor_accelerations if self.config.coupled else motor_accelerations
+                acc = response(x, ctrl, self._drives, sc.ref_shape.to(x.device), seg, sc.n_obj)
             dvc, dw = project(acc * self._dt, x, tw, seg, sc.n_obj, mass)
             vc, w = vc + dvc, w + dw
         xn, vn = advance(x, tw, vc, w, self._dt, seg)

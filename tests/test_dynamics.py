@@ -1,0 +1,192 @@
+"""The whole tree's forward dynamics (:func:`mdgs.actuation.coupled_motor_accelerations` given velocities).
+
+What is checked, against sources independent of the code: in free flight the accelerations of the
+Cubli's cube and flywheels (gravity, motors, gyroscopic and joint velocity terms) are MuJoCo's own
+(``mj_objectAcceleration`` after ``mj_rnePostConstraint``); on the floor a box follows the
+textbook: at rest on a face it stays, held on an edge it falls as a pendulum about the edge
+(``alpha = M g d sin(phi) / (I_c + M d^2)``), tipping up from a face it is let go on the rising side
+and pulled back by gravity alone, a corner about to strike the floor is stopped within the frame,
+sliding it decelerates at ``mu g`` (Coulomb) or, slow enough, is stopped, and a lifted box falls
+freely. The "rigid tree" reference and an untrained MDGS with
+``actuation = "dynamics"`` simulate the same steps.
+
+Tolerances: float64 throughout and MuJoCo's own inertias, so free flight agrees to 1e-9 of the
+largest acceleration; on the floor the held corners are compliant by ``CONTACT_COMPLIANCE``
+(1e-6 m/s^2 per N) against loads of a few newtons, so 1e-4 relative (and m/s^2) is far above the
+compliance's effect and far below any wrong term (gravity alone is 9.81).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from mdgs.actuation import coupled_motor_accelerations, drives_of
+from mdgs.data.split import load_split
+from mdgs.graphs import SceneGraph
+from mdgs.models import MODELS
+from mdgs.models.base import State, batch_of
+from mdgs.rigid import project, twist
+
+H = 0.05  # half side of the test box (m)
+BOX = f"""<mujoco model="box">
+  <option gravity="0 0 -9.81"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="5 5 0.1"/>
+    <body name="box" pos="0 0 1">
+      <freejoint/>
+      <geom type="box" size="{H} {H} {H}" mass="2"/>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+G = 9.81
+
+
+def _box_nodes(model):
+    """Eight elements at the box's half-corners: node body [8], centroids in the body frame [8, 3]."""
+    signs = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], float)
+    return np.ones(8, int), 0.5 * H * signs
+
+
+def _box_acc(R, t, w=(0.0, 0.0, 0.0), vc=(0.0, 0.0, 0.0), dt=0.01):
+    """Node accelerations [8, 3] of the test box at pose (R, t) with twist (vc at its centre, w)."""
+    m = mujoco.MjModel.from_xml_string(BOX)
+    nb, ref = _box_nodes(m)
+    ds = drives_of(m, nb, ref)
+    x = torch.tensor(ref @ R.T + t)[None]
+    v = torch.tensor(np.asarray(vc) + np.cross(np.asarray(w), ref @ R.T))[None]
+    seg = torch.zeros(8, dtype=torch.long)
+    mass = torch.full((8,), 0.25, dtype=torch.float64)
+    acc = coupled_motor_accelerations(x, torch.zeros(1, 0), ds, torch.tensor(ref), seg, 1, v=v, mass=mass, dt=dt)
+    a, alpha = project(acc, x, twist(x, v, seg, 1, mass), seg, 1, mass)
+    return acc[0].numpy(), a[0, 0].numpy(), alpha[0, 0].numpy(), x[0].numpy()
+
+
+def _rot_x(phi):
+    c, s = np.cos(phi), np.sin(phi)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def test_free_flight_accelerations_are_mujocos_with_gravity_motors_gyroscopic_and_joint_velocity_terms(tiny_cubli):
+    d = load_split(tiny_cubli / "test.h5")
+    m = d.mj_model()
+    data = mujoco.MjData(m)
+    sc = SceneGraph.from_static(d.static, has_contact=d.has_contact)
+    ds = drives_of(m, d.static["node_body"], d.static["node_centroid"])
+    rng = np.random.default_rng(0)
+    nb, cen = d.static["node_body"], d.static["node_centroid"]
+    for ctrl in (np.zeros(3), np.array([5.0, -3.0, 2.0]), np.array([0.0, 12.0, -12.0])):
+        data.qpos[:] = m.qpos0
+        data.qpos[2] = 1.0  # far above the floor
+        q = rng.normal(size=4)
+        data.qpos[3:7] = q / np.linalg.norm(q)
+        data.qvel[:] = rng.normal(size=m.nv) * np.r_[np.full(6, 2.0), np.full(m.nv - 6, 300.0)]  # wheels fast
+        data.ctrl[:] = ctrl
+        mujoco.mj_forward(m, data)
+        mujoco.mj_rnePostConstraint(m, data)
+        x = np.array([data.xpos[b] + data.xmat[b].reshape(3, 3) @ cen[i] for i, b in enumerate(nb)])
+        jac, v = np.zeros((3, m.nv)), []
+        for i, b in enumerate(nb):
+            mujoco.mj_jac(m, data, jac, None, x[i], int(b))
+            v.append(jac @ data.qvel)
+        got = coupled_motor_accelerations(torch.tensor(x)[None], torch.tensor(ctrl)[None], ds, sc.ref_shape.double(),
+                                          sc.obj, sc.n_obj, v=torch.tensor(np.array(v))[None],
+                                          mass=sc.mass.double(), dt=0.01)[0].numpy()
+        expect = np.zeros_like(x)
+        for i, b in enumerate(nb):
+            if b == 0:
+                continue
+            res = np.zeros(6)  # [angular; linear at the mass centre], MuJoCo's with gravity as a lift
+            mujoco.mj_objectAcceleration(m, data, mujoco.mjtObj.mjOBJ_BODY, int(b), res, 0)
+            expect[i] = res[3:] + m.opt.gravity + np.cross(res[:3], x[i] - data.xipos[b])
+        scale = np.abs(expect).max()
+        assert scale > 10
+        np.testing.assert_allclose(got, expect, atol=1e-9 * scale)
+
+
+def test_a_box_resting_on_a_face_stays_at_rest():
+    acc, a, alpha, _ = _box_acc(np.eye(3), np.array([0, 0, H]))
+    assert np.abs(acc).max() < 1e-4
+
+
+def test_a_lifted_box_falls_freely():
+    acc, a, alpha, _ = _box_acc(_rot_x(0.3), np.array([0, 0, H * 2]))
+    np.testing.assert_allclose(acc, np.tile([0, 0, -G], (8, 1)), atol=1e-9)
+
+
+@pytest.mark.parametrize("phi", [0.05, 0.3, -0.2])
+def test_a_box_held_on_an_edge_falls_as_a_pendulum_about_it(phi):
+    """Edge along x at the origin, the box's centre at distance d = H sqrt(2) from it, tilted by phi
+    from straight above it: alpha_x = -M g d sin(phi) / (I_c + M d^2) = -3 sqrt(2) g sin(phi) / (8 H)
+    (sign: a tilt towards +y falls further towards +y, a negative turn about x)."""
+    R = _rot_x(np.pi / 4 - phi)  # the edge (y, z) = (-H, -H) of the body goes to the world's origin
+    t = -R @ np.array([0, -H, -H])
+    _, a, alpha, _ = _box_acc(R, t)
+    expect = -3 * np.sqrt(2) * G * np.sin(phi) / (8 * H)
+    np.testing.assert_allclose(alpha, [expect, 0, 0], atol=1e-4 * abs(expect) + 1e-9)
+    np.testing.assert_allclose(a, np.cross(alpha, t), atol=1e-4 * np.abs(a).max() + 1e-9)  # the edge holds
+
+
+def test_a_box_tipping_up_from_a_face_is_let_go_where_it_rises_and_gravity_pulls_it_back():
+    """Flat on its face, turning about the edge (y, z) = (-H, 0) at 3 rad/s (the far edge rising): the
+    rising corners are let go (held, they would pull the box down), and about the held edge gravity
+    alone decelerates it, alpha = -M g H / (8 M H^2 / 3) = -3 g / (8 H)."""
+    w = np.array([3.0, 0.0, 0.0])  # positive about x: the +y side rises
+    t = np.array([0, 0, H])
+    vc = np.cross(w, t - np.array([0, -H, 0]))  # the centre turns about the edge
+    _, a, alpha, _ = _box_acc(np.eye(3), t, w=w, vc=vc)
+    expect = -3 * G / (8 * H)
+    np.testing.assert_allclose(alpha, [expect, 0, 0], atol=1e-4 * abs(expect))
+
+
+def test_a_corner_about_to_strike_the_floor_is_stopped_within_the_frame():
+    """Falling at 2 m/s from 5 mm above the floor, with dt = 10 ms the box would pass the floor: its
+    lowest face is held and stopped over the frame, a = +v / dt = 200 m/s^2 (no rebound, no rotation)."""
+    acc, a, alpha, _ = _box_acc(np.eye(3), np.array([0, 0, H + 0.005]), vc=np.array([0, 0, -2.0]), dt=0.01)
+    np.testing.assert_allclose(a, [0, 0, 200.0], atol=1e-2)
+    np.testing.assert_allclose(alpha, 0, atol=1e-6)
+
+
+@pytest.mark.parametrize("speed", [1.0, 0.05])
+def test_a_box_sliding_on_its_face_feels_coulomb_friction_or_is_stopped_when_friction_can_stop_it(speed):
+    """Sliding along x on its face (MuJoCo's default friction 1 for box and floor, so mu = 1): faster than
+    friction can stop within the frame (mu g dt = 0.098 m/s at dt = 10 ms) it decelerates at mu g = 9.81
+    m/s^2 and stays on its face (the front corners take more of its weight, no turn); slower, its
+    corners stick and it stops over the frame, a = -v / dt."""
+    _, a, alpha, _ = _box_acc(np.eye(3), np.array([0, 0, H]), vc=(speed, 0.0, 0.0), dt=0.01)
+    expect = -G if speed > G * 0.01 else -speed / 0.01
+    np.testing.assert_allclose(a, [expect, 0, 0], atol=1e-4 * G)
+    np.testing.assert_allclose(alpha, 0, atol=1e-3)
+
+
+def test_untrained_dynamics_mdgs_steps_as_the_rigid_tree_reference(tiny_cubli):
+    """``actuation="dynamics"`` untrained is the "rigid tree + joints" reference (1e-5 m over 10 steps:
+    float32 against float64), and both hold the cube up where constant twist lets it sink."""
+    from mdgs.evaluate import reference_label
+
+    tr, te = load_split(tiny_cubli / "train.h5"), load_split(tiny_cubli / "test.h5")
+    b = batch_of(te, te.pairs(0)[:4], "cpu")
+    ct = MODELS["constant-twist"]
+    ref = ct.from_data(te, ct.Config(dynamics=True, joints=True))
+    assert reference_label(ref) == "rigid tree + joints"
+    net = MODELS["mdgs"].from_data(tr, MODELS["mdgs"].Config(actuation="dynamics"))
+    traj = {}
+    for name, sim in (("ref", ref), ("mdgs", net)):
+        sim.bind(te)
+        sim.eval()
+        st, xs = State(b.x, b.v), []
+        with torch.no_grad():
+            for _ in range(10):
+                st = sim.step(st, b.ctrl)
+                xs.append(st.x)
+        traj[name] = torch.stack(xs, 1).double()
+    moving = ~net.scene_on("cpu").static
+    np.testing.assert_allclose(traj["mdgs"][:, :, moving].numpy(), traj["ref"][:, :, moving].numpy(), atol=1e-5)
+
+
+def test_gravity_prior_with_the_dynamics_prior_is_refused():
+    with pytest.raises(ValueError, match="already adds gravity"):
+        MODELS["mdgs"].Config(actuation="dynamics", gravity_prior=True)
