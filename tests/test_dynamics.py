@@ -190,3 +190,12 @@ def test_untrained_dynamics_mdgs_steps_as_the_rigid_tree_reference(tiny_cubli):
 def test_gravity_prior_with_the_dynamics_prior_is_refused():
     with pytest.raises(ValueError, match="already adds gravity"):
         MODELS["mdgs"].Config(actuation="dynamics", gravity_prior=True)
+
+
+def test_the_rigid_tree_is_a_reference_of_mdgs_evaluate_and_does_not_take_the_motors_twice():
+    from mdgs.cli.evaluate import _parse_reference
+
+    assert _parse_reference("constant-twist:dynamics+joints") == ("constant-twist", {"dynamics": True, "joints": True})
+    ct = MODELS["constant-twist"]
+    with pytest.raises(ValueError, match="already holds the motors"):
+        ct.Config(dynamics=True, motors=True)

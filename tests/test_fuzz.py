@@ -168,6 +168,7 @@ def bad_flags(draw):
         return "evaluate", "--reference", draw(st.sampled_from(["mujoco:0", "mujoco:-3", "mujoco:x",
                                                                  "constant-twist:2", "constant-twist:joints+joints",
                                                                  "constant-twist:motors+wheels", "constant-twist:coupled",
+                                                                 "constant-twist:dynamics+motors",
                                                                  "mdgs", "nope"]))
     return "evaluate", "--split", draw(st.text(string.ascii_lowercase, min_size=1, max_size=6).filter(
         lambda s: s not in ("train", "valid", "test")))

@@ -22,11 +22,14 @@ def _parse_reference(text: str) -> tuple[str, dict]:
         return name, {"dt_factor": k}
     if name == "constant-twist" and arg:
         parts = arg.split("+")
-        if not set(parts) <= {"motors", "joints", "coupled"} or len(set(parts)) != len(parts):
-            fail(f"--reference {text}: constant-twist takes motors, joints or motors+joints, and coupled "
-                 f"with motors (e.g. constant-twist:motors+joints, constant-twist:motors+coupled+joints)")
+        if not set(parts) <= {"motors", "joints", "coupled", "dynamics"} or len(set(parts)) != len(parts):
+            fail(f"--reference {text}: constant-twist takes motors, joints or motors+joints, coupled "
+                 f"with motors, or dynamics (e.g. constant-twist:motors+joints, constant-twist:motors+coupled+joints, "
+                 f"constant-twist:dynamics+joints)")
         if "coupled" in parts and "motors" not in parts:
             fail(f"--reference {text}: coupled is a form of the motors' response; write motors+coupled")
+        if "dynamics" in parts and {"motors", "coupled"} & set(parts):
+            fail(f"--reference {text}: dynamics already holds the motors; write dynamics or dynamics+joints")
         return name, {k: True for k in parts}
     if arg:
         fail(f"--reference {text}: {name} takes no setting")
@@ -53,7 +56,9 @@ def evaluate_cmd(
                                              "the data's timestep), constant-twist:motors (constant twist plus the "
                                              "motors' known loads on the bodies they drive), constant-twist:joints "
                                              "(projected onto the joints, as MDGS), constant-twist:motors+joints, or with "
-                                             "+coupled the motors' response of the whole tree (parents recoiling); "
+                                             "+coupled the motors' response of the whole tree (parents recoiling), "
+                                             "constant-twist:dynamics+joints (the rigid tree: the MJCF's forward dynamics "
+                                             "with floor contact, one step per frame); "
                                              "repeatable. constant-twist "
                                              "is always included."),
     device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),
