@@ -80,7 +80,7 @@ CONTACT_PASSES = 4
 RIM_POINTS = 16
 
 __all__ = ["Drive", "DriveSet", "Link", "drives_of", "actuation_forces", "motor_accelerations",
-           "coupled_motor_accelerations"]
+           "coupled_motor_accelerations", "warn_unseen"]
 
 
 @dataclass(frozen=True)
@@ -148,7 +148,9 @@ class DriveSet:
     object (and ``RIM_POINTS`` on each rim of a colliding cylinder), in its body frame, corner_obj : [K]
     that object, corner_friction : [K] the sliding friction of the corner's geom against the floor
     (the larger of the two, as MuJoCo pairs them); floor : the height of the world's highest colliding
-    plane whose normal is +z (None without one; then no corners).
+    plane whose normal is +z (None without one; then no corners); unseen : what the forward dynamics
+    leaves out of a scene, one line each (colliding geoms it has no contact for, joint limits, damping,
+    springs, friction loss), so that a user of the rigid tree or of MDGS's "dynamics" prior is told.
     """
 
     drives: list[Drive] = field(default_factory=list)
@@ -164,6 +166,7 @@ class DriveSet:
     corners: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     corner_obj: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     corner_friction: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    unseen: list[str] = field(default_factory=list)
     floor: float | None = None
     _cache: dict = field(default_factory=dict, repr=False)
 
@@ -239,6 +242,7 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
                    gravity=np.array(m.opt.gravity, float))
     corners, corner_obj, corner_mu, floors = [], [], [], []
     signs = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], float)
+    geom_name = lambda g: mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"#{g}"  # noqa: E731
     for g in range(m.ngeom):
         if not (int(m.geom_contype[g]) or int(m.geom_conaffinity[g])):
             continue
@@ -246,6 +250,14 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
         mujoco.mju_quat2Mat(gq, m.geom_quat[g])
         gq = gq.reshape(3, 3)
         b = int(m.geom_bodyid[g])
+        kind = mujoco.mjtGeom(int(m.geom_type[g])).name.removeprefix("mjGEOM_").lower()
+        if b == 0 and int(m.geom_type[g]) != int(mujoco.mjtGeom.mjGEOM_PLANE):
+            out.unseen.append(f"geom {geom_name(g)} ({kind} of the world): nothing touches it, only +z planes are floors")
+        elif b != 0 and b in obj_of and int(m.geom_type[g]) not in (int(mujoco.mjtGeom.mjGEOM_BOX),
+                                                                  int(mujoco.mjtGeom.mjGEOM_CYLINDER)):
+            out.unseen.append(f"geom {geom_name(g)} ({kind}): no contact points, only boxes and cylinders have them")
+        if b == 0 and int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE) and not np.allclose(gq[:, 2], [0, 0, 1]):
+            out.unseen.append(f"geom {geom_name(g)} (plane): not a floor, its normal is not +z")
         if b == 0 and int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE) and np.allclose(gq[:, 2], [0, 0, 1]):
             floors.append((float(m.geom_pos[g][2]), float(m.geom_friction[g][0])))
         elif b != 0 and b in obj_of and int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_BOX):
@@ -265,6 +277,15 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
         if corners:  # MuJoCo's friction of a pair: the larger of the two geoms'
             out.corners, out.corner_obj = np.concatenate(corners), np.array(corner_obj, int)
             out.corner_friction = np.maximum(np.array(corner_mu), floor_mu)
+    for j in range(m.njnt):
+        jn = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}"
+        dofs = slice(int(m.jnt_dofadr[j]), int(m.jnt_dofadr[j]) + {0: 6, 1: 3, 2: 1, 3: 1}[int(m.jnt_type[j])])
+        left = [what for what, on in (("its range limit", bool(m.jnt_limited[j])),
+                                      ("its spring", float(m.jnt_stiffness[j]) != 0.0),
+                                      ("its damping", bool(np.any(m.dof_damping[dofs] != 0))),
+                                      ("its friction loss", bool(np.any(m.dof_frictionloss[dofs] != 0)))) if on]
+        if left:
+            out.unseen.append(f"joint {jn}: {', '.join(left)}")
     name = lambda kind, i: mujoco.mj_id2name(m, kind, i) or f"#{i}"  # noqa: E731
     kinds = {int(mujoco.mjtJoint.mjJNT_HINGE): "hinge", int(mujoco.mjtJoint.mjJNT_SLIDE): "slide",
              int(mujoco.mjtJoint.mjJNT_BALL): "ball", int(mujoco.mjtJoint.mjJNT_FREE): "free"}
@@ -333,6 +354,16 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
                                 ctrl_range, force_range, np.array(m.jnt_pos[j], float),
                                 float(m.dof_armature[m.jnt_dofadr[j]]), subtree(b)))
     return out
+
+
+def warn_unseen(drives: DriveSet, who: str) -> None:
+    """Warn once (``UserWarning``) that ``who`` (the rigid tree, MDGS's "dynamics" prior) leaves out what
+    ``drives.unseen`` lists; nothing when it lists nothing."""
+    if drives.unseen:
+        import warnings
+
+        warnings.warn(f"{who} uses the forward dynamics of mdgs.actuation, which leaves out, in this scene: "
+                      + "; ".join(drives.unseen), UserWarning, stacklevel=3)
 
 
 def actuation_forces(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor, seg: torch.Tensor,
@@ -479,7 +510,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     solved again (``CONTACT_PASSES`` passes, an active-set search). Not modelled: the friction cone of a
     sticking corner (it holds whatever tangential force sticking takes), rolling and torsional
     friction, joint limits, damping and springs, and contact with any other geom (the Cubli's wall and
-    block, rotational-center's posts).
+    block, rotational-center's posts): ``drives.unseen`` names what a scene has of these, and the rigid
+    tree and MDGS's "dynamics" prior warn with it when bound (:func:`warn_unseen`).
     """
     dynamic = v is not None
     if not drives and not dynamic:

@@ -199,3 +199,43 @@ def test_the_rigid_tree_is_a_reference_of_mdgs_evaluate_and_does_not_take_the_mo
     ct = MODELS["constant-twist"]
     with pytest.raises(ValueError, match="already holds the motors"):
         ct.Config(dynamics=True, motors=True)
+
+
+LEFT_OUT = """<mujoco model="left-out">
+  <worldbody>
+    <geom name="floor" type="plane" size="5 5 0.1"/>
+    <geom name="ramp" type="plane" size="1 1 0.1" euler="0.3 0 0"/>
+    <geom name="post" type="cylinder" size="0.05 0.2" pos="1 0 0.2"/>
+    <body name="base" pos="0 0 0.5">
+      <freejoint/>
+      <geom type="box" size="0.1 0.1 0.1" mass="1"/>
+      <body name="arm" pos="0.2 0 0">
+        <joint name="elbow" type="hinge" axis="0 1 0" range="-1 1" damping="0.1"/>
+        <geom name="ball" type="sphere" size="0.05" mass="0.2"/>
+        <geom name="arm_box" type="box" size="0.05 0.02 0.02" mass="0.1"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_what_the_forward_dynamics_leaves_out_of_a_scene_is_listed_and_its_users_are_warned(tiny_cubli):
+    m = mujoco.MjModel.from_xml_string(LEFT_OUT)
+    nb = np.array([1] * 4 + [2] * 4)
+    signs = np.array([[a, b, 0.5] for a in (-1, 1) for b in (-1, 1)] * 2) * 0.05
+    ds = drives_of(m, nb, signs)
+    text = "\n".join(ds.unseen)
+    assert "geom ramp (plane): not a floor" in text
+    assert "geom post (cylinder of the world)" in text
+    assert "geom ball (sphere): no contact points" in text
+    assert "joint elbow: its range limit, its damping" in text
+    assert not any(u.startswith("geom floor") for u in ds.unseen)  # the +z plane is the floor
+    assert len(ds.unseen) == 4 and len(ds.corner_obj) == 16  # the two boxes' corners
+    # the Cubli's wall and block: the rigid tree and MDGS's prior say so when bound
+    tr, te = load_split(tiny_cubli / "train.h5"), load_split(tiny_cubli / "test.h5")
+    ct = MODELS["constant-twist"]
+    with pytest.warns(UserWarning, match="geom wall .*geom block"):
+        ct.from_data(te, ct.Config(dynamics=True, joints=True)).bind(te)
+    with pytest.warns(UserWarning, match="dynamics.* prior .*geom wall"):
+        MODELS["mdgs"].from_data(tr, MODELS["mdgs"].Config(actuation="dynamics")).bind(te)

@@ -35,6 +35,7 @@ from mdgs.actuation import (
     coupled_motor_accelerations,
     drives_of,
     motor_accelerations,
+    warn_unseen,
 )
 from mdgs.data.split import SplitData
 from mdgs.graphs import (
@@ -483,6 +484,8 @@ class MDGS(Simulator):
                         if self.config.joints else JointSet())
         self._drives = (drives_of(split.mj_model(), split.static["node_body"], split.static["node_centroid"])
                         if self.config.actuation != "none" else DriveSet())
+        if self.config.actuation == "dynamics":
+            warn_unseen(self._drives, "MDGS's \"dynamics\" prior")
         self._gravity = (torch.tensor(np.asarray(split.mj_model().opt.gravity, float), dtype=torch.float32)
                          if self.config.gravity_prior else None)
 

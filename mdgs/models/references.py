@@ -31,7 +31,13 @@ import mujoco
 import numpy as np
 import torch
 
-from mdgs.actuation import DriveSet, coupled_motor_accelerations, drives_of, motor_accelerations
+from mdgs.actuation import (
+    DriveSet,
+    coupled_motor_accelerations,
+    drives_of,
+    motor_accelerations,
+    warn_unseen,
+)
 from mdgs.data.split import SplitData
 from mdgs.graphs import SceneGraph
 from mdgs.joints import JointSet, joints_of, project_joints
@@ -90,6 +96,8 @@ class ConstantTwist(Simulator):
         self._dt = float(split.frame_dt)
         self._drives = (drives_of(split.mj_model(), split.static["node_body"], split.static["node_centroid"])
                         if self.config.motors or self.config.dynamics else DriveSet())
+        if self.config.dynamics:
+            warn_unseen(self._drives, "the rigid tree reference")
         self._joints = (joints_of(split.mj_model(), split.static["node_body"], split.static["node_centroid"])
                         if self.config.joints else JointSet())
 
