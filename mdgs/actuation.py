@@ -357,13 +357,14 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
 
 
 def warn_unseen(drives: DriveSet, who: str) -> None:
-    """Warn once (``UserWarning``) that ``who`` (the rigid tree, MDGS's "dynamics" prior) leaves out what
-    ``drives.unseen`` lists; nothing when it lists nothing."""
+    """Warn (``UserWarning``, issued here so that Python shows each scene's list once a process) that
+    ``who`` (the rigid tree, MDGS's "dynamics" prior) leaves out what ``drives.unseen`` lists; nothing
+    when it lists nothing."""
     if drives.unseen:
         import warnings
 
         warnings.warn(f"{who} uses the forward dynamics of mdgs.actuation, which leaves out, in this scene: "
-                      + "; ".join(drives.unseen), UserWarning, stacklevel=3)
+                      + "; ".join(drives.unseen), UserWarning, stacklevel=1)
 
 
 def actuation_forces(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor, seg: torch.Tensor,

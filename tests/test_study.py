@@ -144,6 +144,12 @@ def test_rigid_tree_reference_is_one_more_cell_per_scene_and_earlier_cells_keep_
     assert reference_label(ct(ct.Config(**dict(extra[0].settings)))) == extra[0].label
     with pytest.raises(StudyError, match="rigid_tree"):
         load_study(_write(tmp_path, GOOD + "[references]\nrigid_tree = 1\n"))
+    both = load_study(_write(tmp_path, GOOD + "[references]\nmotors = true\njoints = true\nrigid_tree = true\n"
+                                              "rigid_tree_trapezoidal = true\n"))
+    more = [c for c in cells_of(both) if c.key(both) not in {k.key(study) for k in cells_of(study)}]
+    assert [(c.label, dict(c.settings)) for c in more] == [
+        ("rigid tree + joints, trapezoidal", {"dynamics": True, "joints": True, "trapezoidal": True})]
+    assert reference_label(ct(ct.Config(**dict(more[0].settings)))) == more[0].label
 
 
 def _changes_only_learned_keys(tmp_path, text: str, line: str, name: str):

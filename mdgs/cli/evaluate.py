@@ -22,10 +22,10 @@ def _parse_reference(text: str) -> tuple[str, dict]:
         return name, {"dt_factor": k}
     if name == "constant-twist" and arg:
         parts = arg.split("+")
-        if not set(parts) <= {"motors", "joints", "coupled", "dynamics"} or len(set(parts)) != len(parts):
+        if not set(parts) <= {"motors", "joints", "coupled", "dynamics", "trapezoidal"} or len(set(parts)) != len(parts):
             fail(f"--reference {text}: constant-twist takes motors, joints or motors+joints, coupled "
                  f"with motors, or dynamics (e.g. constant-twist:motors+joints, constant-twist:motors+coupled+joints, "
-                 f"constant-twist:dynamics+joints)")
+                 f"constant-twist:dynamics+joints, +trapezoidal to move with the mean of the old and new twist)")
         if "coupled" in parts and "motors" not in parts:
             fail(f"--reference {text}: coupled is a form of the motors' response; write motors+coupled")
         if "dynamics" in parts and {"motors", "coupled"} & set(parts):

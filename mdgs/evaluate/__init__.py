@@ -93,10 +93,11 @@ def reference_label(model: Simulator) -> str:
         return f"mujoco dt x{model.config.dt_factor}"
     if model.name == "constant-twist":
         c = model.config
+        trap = ", trapezoidal" if c.trapezoidal else ""
         if c.dynamics:
-            return "rigid tree" + (" + joints" if c.joints else "")
+            return "rigid tree" + (" + joints" if c.joints else "") + trap
         motors = " + coupled motors" if c.motors and c.coupled else " + motors" if c.motors else ""
-        return "constant twist" + motors + (" + joints" if c.joints else "")
+        return "constant twist" + motors + (" + joints" if c.joints else "") + trap
     return model.name.replace("-", " ")
 
 

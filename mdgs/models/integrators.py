@@ -17,15 +17,17 @@ from mdgs.structure import segment_mean
 __all__ = ["INTEGRATORS", "rigid", "twist_space", "euler", "direct"]
 
 
-def rigid(x, v, out, scene: SceneGraph, dt: float, dx_scale: float, dv_scale: float, **_) -> tuple:
+def rigid(x, v, out, scene: SceneGraph, dt: float, dx_scale: float, dv_scale: float, trapezoidal: bool = False,
+          **_) -> tuple:
     """Rigid step: ``dv_scale g_v`` is a velocity increment whose rigid part (:func:`mdgs.rigid.project`)
     updates each object's twist; nodes move with the exact rigid motion of the new twist over ``dt``
-    (:func:`mdgs.rigid.advance`), plus the rigid part of ``dx_scale g_x`` as a position correction."""
+    (:func:`mdgs.rigid.advance`; ``trapezoidal``: of the mean of the old and new twist), plus the rigid
+    part of ``dx_scale g_x`` as a position correction."""
     seg, n, mass = scene.obj.to(x.device), scene.n_obj, scene.mass.to(x.device)
     tw = twist(x, v, seg, n, mass)
     dvc, dw = project(dv_scale * out[..., 3:], x, tw, seg, n, mass)
     dc, dth = project(dx_scale * out[..., :3], x, tw, seg, n, mass)
-    return advance(x, tw, tw.vc + dvc, tw.omega + dw, dt, seg, dc, dth)
+    return advance(x, tw, tw.vc + dvc, tw.omega + dw, dt, seg, dc, dth, trapezoidal=trapezoidal)
 
 
 def twist_space(x, v, out, scene: SceneGraph, dt: float, dvc_scale: float, dw_scale: float, **_) -> tuple:

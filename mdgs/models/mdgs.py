@@ -158,6 +158,10 @@ class MDGSConfig:
         in another, and a body's spin is an input rather than a pattern across its nodes).
     self_weight : give every GCN layer a separate weight on each node's own features
         (:class:`mdgs.models.layers.GCN`); the paper's GCN only averages over a node's neighbourhood.
+    trapezoidal : with the "rigid" integrator, move each body over the frame with the mean of its old and
+        new twist (exact for a constant acceleration) instead of the new one; g's position target is
+        then the residual of that motion. With ``actuation = "dynamics"`` the untrained model is the
+        "rigid tree + joints, trapezoidal" reference.
     loss : the one-step term: "mse" (Eq. 10), "huber" (:func:`mdgs.losses.huber_loss`, delta 1 in the
         scaled units) or "relative" (each pair's Eq. 10 divided by that of the zero output on the same
         pair, i.e. of constant twist plus the priors, plus the batch's median of it: every frame weighs
@@ -191,6 +195,7 @@ class MDGSConfig:
     unroll: int = 0
     features: str = "paper"
     self_weight: bool = False
+    trapezoidal: bool = False
     loss: str = "mse"
     noise: str = "auto"
     noise_sigma_x: float = -1.0
@@ -244,6 +249,8 @@ class MDGSConfig:
             raise ValueError(f"gravity_prior must be true or false, got {self.gravity_prior!r}")
         if not isinstance(self.self_weight, bool):
             raise ValueError(f"self_weight must be true or false, got {self.self_weight!r}")
+        if not isinstance(self.trapezoidal, bool):
+            raise ValueError(f"trapezoidal must be true or false, got {self.trapezoidal!r}")
         if self.gravity_prior and self.actuation == "dynamics":
             raise ValueError("actuation = \"dynamics\" already adds gravity; set gravity_prior = false with it")
 
@@ -419,7 +426,7 @@ class MDGS(Simulator):
             dx = (xs[:, 1:] - xs[:, :-1] - dt * vs[:, 1:]).reshape(-1, 3)
         elif cfg.integrator in ("rigid", "twist"):
             scene = SceneGraph.from_static(d.static, has_contact=d.has_contact)
-            dv, dx, dvc, dw = _rigid_increments(d, scene, dt, trapezoidal=cfg.integrator == "twist")
+            dv, dx, dvc, dw = _rigid_increments(d, scene, dt, trapezoidal=cfg.integrator == "twist" or cfg.trapezoidal)
             if cfg.integrator == "twist":
                 if cfg.dvc_scale == 1.0:
                     kw["dvc_scale"] = float(max(dvc.std(), 1e-12))
@@ -712,7 +719,7 @@ class MDGS(Simulator):
         elif priors:
             for p in priors:  # one at a time, as before the twist integrator took them
                 out = out + torch.cat([torch.zeros_like(p), p / sv], -1)
-        x1, v1 = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx, dv_scale=sv,
+        x1, v1 = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx, dv_scale=sv, trapezoidal=c.trapezoidal,
                                            dvc_scale=svc, dw_scale=sw)
         pose = None
         if c.structure:

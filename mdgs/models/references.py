@@ -63,15 +63,18 @@ class ConstantTwistConfig:
         (:func:`mdgs.actuation.coupled_motor_accelerations` given the velocities), integrated by
         semi-implicit Euler over the frame; the label is "rigid tree" (a hand-written, one-step-per-frame
         simulator of the scene's MJCF, without MuJoCo's contact model).
+    trapezoidal : move each body over the frame with the mean of its old and new twist (exact for a
+        constant acceleration) instead of the new one; the label gains ", trapezoidal".
     """
 
     motors: bool = False
     joints: bool = False
     coupled: bool = False
     dynamics: bool = False
+    trapezoidal: bool = False
 
     def __post_init__(self):
-        for k in ("motors", "joints", "coupled", "dynamics"):
+        for k in ("motors", "joints", "coupled", "dynamics", "trapezoidal"):
             if not isinstance(getattr(self, k), bool):
                 raise ValueError(f"{k} must be true or false, got {getattr(self, k)!r}")
         if self.coupled and not self.motors:
@@ -116,7 +119,7 @@ class ConstantTwist(Simulator):
                 acc = response(x, ctrl, self._drives, sc.ref_shape.to(x.device), seg, sc.n_obj)
             dvc, dw = project(acc * self._dt, x, tw, seg, sc.n_obj, mass)
             vc, w = vc + dvc, w + dw
-        xn, vn = advance(x, tw, vc, w, self._dt, seg)
+        xn, vn = advance(x, tw, vc, w, self._dt, seg, trapezoidal=self.config.trapezoidal)
         if self._joints:  # hinged bodies stay hinged (the projection of MDGS's simulated steps)
             xn, vn = project_joints(xn, vn, self._joints, sc.ref_shape.to(x.device), seg, sc.n_obj, mass)
         m = (~sc.static).to(x.device).view(1, -1, 1)

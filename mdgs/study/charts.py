@@ -74,7 +74,8 @@ def _legend_below(fig, handles: dict, ncol: int, panels_height: float) -> None:
 
 #: Markers of the non-learned references other than MuJoCo (grey), so each can be told apart.
 _REF_MARKERS = {"constant twist": "s", "constant twist + joints": "D", "constant twist + motors": "^",
-                "constant twist + motors + joints": "v", "rigid tree + joints": "P"}
+                "constant twist + motors + joints": "v", "rigid tree + joints": "P",
+                "rigid tree + joints, trapezoidal": "X"}
 
 
 def _eager_rows(lines, scene) -> set[str]:

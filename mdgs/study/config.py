@@ -42,6 +42,8 @@ A study file has these tables (every key optional unless marked; defaults in the
                                         # default false): what an MDGS whose network outputs zero simulates
     rigid_tree = true                   # also "rigid tree + joints" (default false): the scene's MJCF as a rigid
                                         # tree with floor contact with friction, one step per frame (mdgs.actuation)
+    rigid_tree_trapezoidal = true       # also "rigid tree + joints, trapezoidal" (default false): the same moving
+                                        # each body with the mean of its old and new twist
 
     [resolution]                        # MDGS error and cost against the element resolution
     model = "mdgs"                      # a registry name, or the label of a [[models]] row (its settings)
@@ -131,6 +133,7 @@ class StudyConfig:
     motor_twist: bool = False
     joint_twist: bool = False
     rigid_tree: bool = False
+    rigid_tree_trapezoidal: bool = False
     resolution_model: str = "mdgs"
     resolution_label: str = "mdgs"
     resolution_settings: tuple[tuple[str, object], ...] = ()
@@ -292,11 +295,12 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
         raise StudyError(f"{f}: two [[models]] share a label; give each a distinct label")
 
     rf = _take(doc, "references", dict, f, {})
-    _unknown(rf, {"mujoco_dt_factors", "motors", "joints", "rigid_tree"}, f"{f} [references]")
+    _unknown(rf, {"mujoco_dt_factors", "motors", "joints", "rigid_tree", "rigid_tree_trapezoidal"}, f"{f} [references]")
     dts = _ints(rf, "mujoco_dt_factors", f"{f} [references]", (1, 2, 5, 10, 20), lo=1)
     motors = _take(rf, "motors", bool, f"{f} [references]", False)
     joints = _take(rf, "joints", bool, f"{f} [references]", False)
     rigid_tree = _take(rf, "rigid_tree", bool, f"{f} [references]", False)
+    rigid_trap = _take(rf, "rigid_tree_trapezoidal", bool, f"{f} [references]", False)
 
     rs = _take(doc, "resolution", dict, f, {})
     where = f"{f} [resolution]"
@@ -314,6 +318,6 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
                        long_frames=long_frames, long_trajectories=long_traj, failure_factor=failure,
                        sensitivity=sens, sensitivity_seeds=sens_seeds, budget=budget, scenes=tuple(scenes),
                        models=tuple(models), mujoco_dt_factors=dts, motor_twist=motors, joint_twist=joints,
-                       rigid_tree=rigid_tree,
+                       rigid_tree=rigid_tree, rigid_tree_trapezoidal=rigid_trap,
                        resolution_model=rmodel, resolution_label=rlabel, resolution_settings=rsettings,
                        resolution_refine=refine, resolution_seeds=_ints(rs, "seeds", where, (0,)))

@@ -139,6 +139,9 @@ def _reference_cells(study: StudyConfig, sc: SceneEntry, refine: int = 1) -> lis
             specs.append(("constant-twist", "constant twist + motors + joints", (("joints", True), ("motors", True))))
     if study.rigid_tree:
         specs.append(("constant-twist", "rigid tree + joints", (("dynamics", True), ("joints", True))))
+    if study.rigid_tree_trapezoidal:
+        specs.append(("constant-twist", "rigid tree + joints, trapezoidal",
+                      (("dynamics", True), ("joints", True), ("trapezoidal", True))))
     specs += [("mujoco", f"mujoco dt x{k}", (("dt_factor", k),)) for k in study.mujoco_dt_factors]
     return [Cell("reference", sc, model, label + tail, settings, refine=refine) for model, label, settings in specs]
 
