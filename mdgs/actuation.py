@@ -80,7 +80,7 @@ CONTACT_PASSES = 4
 RIM_POINTS = 16
 
 __all__ = ["Drive", "DriveSet", "Link", "drives_of", "actuation_forces", "motor_accelerations",
-           "coupled_motor_accelerations", "warn_unseen"]
+           "coupled_motor_accelerations", "floor_corners", "warn_unseen"]
 
 
 @dataclass(frozen=True)
@@ -465,6 +465,23 @@ def _rows(S: int, B: int, like: torch.Tensor, c: int, p: int, D: torch.Tensor, a
     return out.reshape(B, D.shape[1], 6 * S)
 
 
+def floor_corners(R: torch.Tensor, t: torch.Tensor, tw, drives: DriveSet, dt: float) -> tuple:
+    """Where the floor acts, by the rule of :func:`coupled_motor_accelerations`: ``drives.corners`` in the
+    world ``P`` [B, K, 3], their velocities ``u`` [B, K, 3] (from the objects' twists ``tw``,
+    :func:`mdgs.rigid.twist`), which the floor holds [B, K] (within ``CONTACT_GAP`` of it, or reaching it
+    within ``dt``), and which move across it faster than friction could stop within ``dt`` [B, K]
+    (``|u_xy| > mu |g| dt``: they slide, if held). ``R, t`` [B, S, 3, 3], [B, S, 3]: the objects' poses."""
+    f64 = torch.float64
+    obj = torch.as_tensor(drives.corner_obj, device=R.device)
+    P = (R[:, obj] @ torch.as_tensor(drives.corners, dtype=f64, device=R.device).unsqueeze(-1)).squeeze(-1) + t[:, obj]
+    u = tw.vc[:, obj] + torch.linalg.cross(tw.omega[:, obj], P - tw.c[:, obj], dim=-1)
+    h = P[..., 2] - drives.floor
+    held = (h < CONTACT_GAP) | (h + dt * u[..., 2].clamp_max(0.0) < CONTACT_GAP)
+    mu = torch.as_tensor(drives.corner_friction, dtype=f64, device=R.device)
+    slide = u[..., :2].norm(dim=-1) > mu * float(np.linalg.norm(drives.gravity)) * dt
+    return P, u, held, slide
+
+
 def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
                                 seg: torch.Tensor, n_obj: int, v: torch.Tensor | None = None,
                                 mass: torch.Tensor | None = None, dt: float | None = None) -> torch.Tensor:
@@ -599,11 +616,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     contact = dynamic and drives.floor is not None and len(drives.corner_obj) > 0
     if contact:
         obj = torch.as_tensor(drives.corner_obj, device=dev)
-        P = (R[:, obj] @ torch.as_tensor(drives.corners, dtype=f64, device=dev).unsqueeze(-1)).squeeze(-1) \
-            + t[:, obj]  # [B, K, 3] corners in the world
-        uP = tw.vc[:, obj] + torch.linalg.cross(w[:, obj], P - tw.c[:, obj], dim=-1)  # their velocities
-        h = P[..., 2] - drives.floor
-        active = (h < CONTACT_GAP) | (h + dt * uP[..., 2].clamp_max(0.0) < CONTACT_GAP)  # [B, K]
+        P, uP, active, slide = floor_corners(R, t, tw, drives, dt)  # [B, K, 3] x2, [B, K] x2
         arm = P - xs[:, obj]
         rows, crhs = [], []
         for k, o in enumerate(drives.corner_obj.tolist()):
@@ -611,12 +624,9 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             wk = w[:, o]
             crhs.append(-torch.linalg.cross(wk, torch.linalg.cross(wk, arm[:, k], dim=-1), dim=-1) - uP[:, k] / dt)
         Jc, rc_ = torch.cat(rows, 1).view(B, -1, 3, 6 * S), torch.cat(crhs, -1).view(B, -1, 3)  # per corner
-        # sliding: faster across the floor than friction could stop within the frame
         mu = torch.as_tensor(drives.corner_friction, dtype=f64, device=dev)  # [K]
         ut = uP[..., :2]
-        speed = ut.norm(dim=-1)
-        slide = speed > mu * float(np.linalg.norm(drives.gravity)) * dt  # [B, K]
-        uhat = ut / speed.clamp_min(torch.finfo(f64).tiny).unsqueeze(-1)
+        uhat = ut / ut.norm(dim=-1).clamp_min(torch.finfo(f64).tiny).unsqueeze(-1)
         # a sliding corner's z column carries the friction it feels: -mu |f_n| along its slip
         fric = Jc[:, :, 2] - mu.view(1, -1, 1) * (uhat[..., :1] * Jc[:, :, 0] + uhat[..., 1:] * Jc[:, :, 1])
         Cc = torch.cat([Jc[:, :, :2], torch.where(slide.unsqueeze(-1), fric, Jc[:, :, 2]).unsqueeze(2)], 2)

@@ -17,7 +17,7 @@ import sys
 import numpy as np
 import torch
 
-from mdgs.actuation import CONTACT_GAP, coupled_motor_accelerations, drives_of
+from mdgs.actuation import coupled_motor_accelerations, drives_of, floor_corners
 from mdgs.data.split import load_split
 from mdgs.models import MODELS
 from mdgs.models.base import batch_of
@@ -41,18 +41,11 @@ moving = ~sc.static
 
 
 def corner_sets(x, v):
-    """[B, K] held and sliding corners of frame (x, v), by the forward dynamics' rule."""
+    """[B, K] held and sliding corners of frame (x, v), by the forward dynamics' own rule."""
     x, v = x.double(), v.double()
     R, t = kabsch(ref, x, seg, n)
-    tw = twist(x, v, seg, n, mass)
-    obj = torch.as_tensor(ds.corner_obj)
-    P = (R[:, obj] @ torch.as_tensor(ds.corners).unsqueeze(-1)).squeeze(-1) + t[:, obj]
-    u = tw.vc[:, obj] + torch.linalg.cross(tw.omega[:, obj], P - tw.c[:, obj], dim=-1)
-    h = P[..., 2] - ds.floor
-    held = (h < CONTACT_GAP) | (h + dt * u[..., 2].clamp_max(0.0) < CONTACT_GAP)
-    mu = torch.as_tensor(ds.corner_friction)
-    slide = held & (u[..., :2].norm(dim=-1) > mu * float(np.linalg.norm(ds.gravity)) * dt)
-    return held, slide
+    _, _, held, slide = floor_corners(R, t, twist(x, v, seg, n, mass), ds, dt)
+    return held, held & slide
 
 
 def prior_dv(x, v):
