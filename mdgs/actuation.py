@@ -60,6 +60,7 @@ of the sums. Everything runs in float64; shapes ``[B, N, 3]``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -75,12 +76,18 @@ CONTACT_GAP = 2e-3
 CONTACT_COMPLIANCE = 1e-6
 #: Passes of the active-set search that lets go of corners the floor would pull.
 CONTACT_PASSES = 4
-#: Points on each rim of a colliding cylinder that stand in for it as corners (a 16-gon's rim is
-#: within 2 % of the radius of the circle's).
+#: Points on each rim of a colliding cylinder that stand in for it as corners against curved or bounded
+#: surfaces (a 16-gon's rim is within 2 % of the radius of the circle's); against a plane a rim touches
+#: at its exact lowest point instead (``RIM_SUPPORT`` points, :func:`contacts`).
 RIM_POINTS = 16
+#: Points of a rim held against a plane: its lowest and two more at +-120 degrees around the rim, so
+#: that a disc lying flat rests on a triangle and a tilted one rolls on its lowest point.
+RIM_SUPPORT = 3
+#: World geoms a corner can touch (MuJoCo's type names); others are listed in ``DriveSet.unseen``.
+SURFACE_KINDS = ("plane", "box", "sphere", "capsule", "cylinder")
 
-__all__ = ["Drive", "DriveSet", "Link", "drives_of", "actuation_forces", "motor_accelerations",
-           "coupled_motor_accelerations", "floor_corners", "warn_unseen"]
+__all__ = ["Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
+           "motor_accelerations", "coupled_motor_accelerations", "contacts", "warn_unseen"]
 
 
 @dataclass(frozen=True)
@@ -123,6 +130,12 @@ class Link:
     where a hinge's axis and anchor stay whatever the joint's angle, so they are known even for a
     child whose elements do not fix its rotation (a thin pole); a slide's anchor at ``qpos0`` (moving
     it along the axis changes no row). armature : the joint's armature (hinge, slide; 0 otherwise).
+    limit : (lo, hi) the joint's range in MuJoCo's ``qpos`` units when the MJCF limits it (hinge, slide),
+    else None; qpos0 : the joint's ``qpos0`` (its ``ref``); frame0 : [3, 3] the child's frame in the
+    parent's at ``qpos0`` (``body_quat``); origin : [3] the child's origin there (``body_pos``), so that a
+    hinge's angle is ``qpos0`` plus the turn of ``R_p^T R_c frame0^T`` about ``axis`` and a slide's
+    ``qpos0 + axis . (R_p^T (t_c - t_p) - origin)``. solref, solimp, margin, invweight : the limit's
+    softness as MuJoCo's (``jnt_solref``, ``jnt_solimp``, ``jnt_margin``, ``dof_invweight0``).
     """
 
     child: int
@@ -132,6 +145,32 @@ class Link:
     perp: np.ndarray
     anchor: np.ndarray
     armature: float = 0.0
+    limit: tuple[float, float] | None = None
+    qpos0: float = 0.0
+    frame0: np.ndarray = field(default_factory=lambda: np.eye(3))
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    solref: tuple[float, float] = (0.02, 1.0)
+    solimp: tuple[float, ...] = (0.9, 0.95, 0.001, 0.5, 2.0)
+    margin: float = 0.0
+    invweight: float = 1.0
+
+
+@dataclass(frozen=True)
+class Surface:
+    """A colliding geom of the world (MuJoCo's body 0) that the corners of moving bodies touch.
+
+    kind : one of ``SURFACE_KINDS`` (a plane is MuJoCo's infinite half-space below its local xy plane);
+    pos : [3] its centre, rot : [3, 3] its frame (columns: its axes in the world), size : [3] MuJoCo's
+    ``geom_size`` (box: half sides; sphere: radius; capsule and cylinder: radius, half length along
+    the local z); friction : its sliding friction; name : the geom's name.
+    """
+
+    kind: str
+    pos: np.ndarray
+    rot: np.ndarray
+    size: np.ndarray
+    friction: float
+    name: str = ""
 
 
 @dataclass
@@ -144,13 +183,16 @@ class DriveSet:
     whose joint :func:`coupled_motor_accelerations` can write (the others are left free there, and named,
     with the reason, in ``unlinked``); fixed : [S] objects that do not move (the world body's elements).
     For the forward dynamics (:func:`coupled_motor_accelerations` given velocities): gravity : [3] the
-    MJCF's ``opt.gravity``; corners : [K, 3] the corners of every colliding box geom of a moving
-    object (and ``RIM_POINTS`` on each rim of a colliding cylinder), in its body frame, corner_obj : [K]
-    that object, corner_friction : [K] the sliding friction of the corner's geom against the floor
-    (the larger of the two, as MuJoCo pairs them); floor : the height of the world's highest colliding
-    plane whose normal is +z (None without one; then no corners); unseen : what the forward dynamics
-    leaves out of a scene, one line each (colliding geoms it has no contact for, joint limits, damping,
-    springs, friction loss), so that a user of the rigid tree or of MDGS's "dynamics" prior is told.
+    MJCF's ``opt.gravity``; surfaces : the world's colliding geoms (:class:`Surface`: planes, boxes,
+    spheres, capsules, cylinders); corners : [K, 3] the corners of every colliding box geom of a moving
+    object (and ``RIM_POINTS`` on each rim of a colliding cylinder, ``on_rim`` [K] True), in its body frame,
+    corner_obj : [K] that object, corner_friction : [K] the sliding friction of the corner's geom (against
+    a surface MuJoCo takes the larger of the two); rims : [Q, 7] each colliding cylinder's two rims, centre
+    [3] and axis [3] in its body frame and radius, rim_obj : [Q], rim_friction : [Q]; none of these
+    without surfaces. unseen : what the forward dynamics
+    leaves out of a scene, one line each (colliding geoms it has no contact for, joint limits it cannot
+    hold, damping, springs, friction loss), so that a user of the rigid tree or of MDGS's "dynamics"
+    prior is told.
     """
 
     drives: list[Drive] = field(default_factory=list)
@@ -166,8 +208,12 @@ class DriveSet:
     corners: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     corner_obj: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     corner_friction: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    on_rim: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    rims: np.ndarray = field(default_factory=lambda: np.zeros((0, 7)))
+    rim_obj: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    rim_friction: np.ndarray = field(default_factory=lambda: np.zeros(0))
     unseen: list[str] = field(default_factory=list)
-    floor: float | None = None
+    surfaces: list[Surface] = field(default_factory=list)
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __bool__(self) -> bool:
@@ -240,7 +286,7 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
         posable[k] = fixes_rotation(node_centroid[node_body == b])
     out = DriveSet(mass=mass, inertia=inertia, inv_inertia=inv_inertia, com=com, fixed=bodies == 0,
                    gravity=np.array(m.opt.gravity, float))
-    corners, corner_obj, corner_mu, floors = [], [], [], []
+    corners, corner_obj, corner_mu, on_rim, rims, rim_obj, rim_mu = [], [], [], [], [], [], []
     signs = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], float)
     geom_name = lambda g: mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"#{g}"  # noqa: E731
     for g in range(m.ngeom):
@@ -251,20 +297,18 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
         gq = gq.reshape(3, 3)
         b = int(m.geom_bodyid[g])
         kind = mujoco.mjtGeom(int(m.geom_type[g])).name.removeprefix("mjGEOM_").lower()
-        if b == 0 and int(m.geom_type[g]) != int(mujoco.mjtGeom.mjGEOM_PLANE):
-            out.unseen.append(f"geom {geom_name(g)} ({kind} of the world): nothing touches it, only +z planes are floors")
-        elif b != 0 and b in obj_of and int(m.geom_type[g]) not in (int(mujoco.mjtGeom.mjGEOM_BOX),
-                                                                  int(mujoco.mjtGeom.mjGEOM_CYLINDER)):
-            out.unseen.append(f"geom {geom_name(g)} ({kind}): no contact points, only boxes and cylinders have them")
-        if b == 0 and int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE) and not np.allclose(gq[:, 2], [0, 0, 1]):
-            out.unseen.append(f"geom {geom_name(g)} (plane): not a floor, its normal is not +z")
-        if b == 0 and int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_PLANE) and np.allclose(gq[:, 2], [0, 0, 1]):
-            floors.append((float(m.geom_pos[g][2]), float(m.geom_friction[g][0])))
-        elif b != 0 and b in obj_of and int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_BOX):
+        if b == 0 and kind in SURFACE_KINDS:
+            out.surfaces.append(Surface(kind, np.array(m.geom_pos[g], float), gq, np.array(m.geom_size[g], float),
+                                        float(m.geom_friction[g][0]), geom_name(g)))
+        elif b == 0:
+            out.unseen.append(f"geom {geom_name(g)} ({kind} of the world): nothing touches it, only planes, boxes, "
+                              "spheres, capsules and cylinders of the world are touched")
+        elif b in obj_of and kind == "box":
             corners.append(m.geom_pos[g] + (signs * m.geom_size[g]) @ gq.T)
             corner_obj += [obj_of[b]] * 8
             corner_mu += [float(m.geom_friction[g][0])] * 8
-        elif b != 0 and b in obj_of and int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_CYLINDER):
+            on_rim += [False] * 8
+        elif b in obj_of and kind == "cylinder":
             r, h = m.geom_size[g][:2]
             ang = 2 * np.pi * np.arange(RIM_POINTS) / RIM_POINTS
             rim = np.stack([r * np.cos(ang), r * np.sin(ang), np.zeros_like(ang)], -1)
@@ -272,23 +316,22 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
             corners.append(m.geom_pos[g] + pts @ gq.T)
             corner_obj += [obj_of[b]] * len(pts)
             corner_mu += [float(m.geom_friction[g][0])] * len(pts)
-    if floors:
-        out.floor, floor_mu = max(floors)
-        if corners:  # MuJoCo's friction of a pair: the larger of the two geoms'
-            out.corners, out.corner_obj = np.concatenate(corners), np.array(corner_obj, int)
-            out.corner_friction = np.maximum(np.array(corner_mu), floor_mu)
-    for j in range(m.njnt):
-        jn = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}"
-        dofs = slice(int(m.jnt_dofadr[j]), int(m.jnt_dofadr[j]) + {0: 6, 1: 3, 2: 1, 3: 1}[int(m.jnt_type[j])])
-        left = [what for what, on in (("its range limit", bool(m.jnt_limited[j])),
-                                      ("its spring", float(m.jnt_stiffness[j]) != 0.0),
-                                      ("its damping", bool(np.any(m.dof_damping[dofs] != 0))),
-                                      ("its friction loss", bool(np.any(m.dof_frictionloss[dofs] != 0)))) if on]
-        if left:
-            out.unseen.append(f"joint {jn}: {', '.join(left)}")
+            on_rim += [True] * len(pts)
+            for side in (1.0, -1.0):
+                rims.append(np.r_[m.geom_pos[g] + side * h * gq[:, 2], gq[:, 2], r])
+                rim_obj.append(obj_of[b])
+                rim_mu.append(float(m.geom_friction[g][0]))
+        elif b in obj_of:
+            out.unseen.append(f"geom {geom_name(g)} ({kind}): no contact points, only boxes and cylinders have them")
+    if out.surfaces and corners:
+        out.corners, out.corner_obj = np.concatenate(corners), np.array(corner_obj, int)
+        out.corner_friction, out.on_rim = np.array(corner_mu), np.array(on_rim, bool)
+    if out.surfaces and rims:
+        out.rims, out.rim_obj, out.rim_friction = np.array(rims), np.array(rim_obj, int), np.array(rim_mu)
     name = lambda kind, i: mujoco.mj_id2name(m, kind, i) or f"#{i}"  # noqa: E731
     kinds = {int(mujoco.mjtJoint.mjJNT_HINGE): "hinge", int(mujoco.mjtJoint.mjJNT_SLIDE): "slide",
              int(mujoco.mjtJoint.mjJNT_BALL): "ball", int(mujoco.mjtJoint.mjJNT_FREE): "free"}
+    held_limits: set[int] = set()  # joints whose range limit a link holds
     for k, b in enumerate(int(x) for x in bodies):
         if b == 0:
             continue
@@ -312,8 +355,29 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
         e1 /= np.linalg.norm(e1)
         anchor = m.body_pos[b] + q0 @ (np.array(m.jnt_pos[j], float) if nj else np.array(m.body_ipos[b], float))
         arm = float(m.dof_armature[m.jnt_dofadr[j]]) if kind in ("hinge", "slide") else 0.0
+        limit = None
+        if kind in ("hinge", "slide") and bool(m.jnt_limited[j]):
+            limit = (float(m.jnt_range[j][0]), float(m.jnt_range[j][1]))
+            held_limits.add(j)
+        soft = {}
+        if limit is not None:
+            ref = float(m.jnt_solref[j][0])
+            soft = dict(solref=(max(ref, 2 * float(m.opt.timestep)) if ref > 0 else ref, float(m.jnt_solref[j][1])),
+                        solimp=tuple(float(c) for c in m.jnt_solimp[j]), margin=float(m.jnt_margin[j]),
+                        invweight=float(m.dof_invweight0[m.jnt_dofadr[j]]))
         out.links.append(Link(k, obj_of[p] if p != 0 else -1, kind, axis, np.stack([e1, np.cross(axis, e1)]),
-                              anchor, arm))
+                              anchor, arm, limit, float(m.qpos0[m.jnt_qposadr[j]]) if nj else 0.0, q0,
+                              np.array(m.body_pos[b], float), **soft))
+
+    for j in range(m.njnt):
+        jn = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) or f"#{j}"
+        dofs = slice(int(m.jnt_dofadr[j]), int(m.jnt_dofadr[j]) + {0: 6, 1: 3, 2: 1, 3: 1}[int(m.jnt_type[j])])
+        left = [what for what, on in (("its range limit", bool(m.jnt_limited[j]) and j not in held_limits),
+                                      ("its spring", float(m.jnt_stiffness[j]) != 0.0),
+                                      ("its damping", bool(np.any(m.dof_damping[dofs] != 0))),
+                                      ("its friction loss", bool(np.any(m.dof_frictionloss[dofs] != 0)))) if on]
+        if left:
+            out.unseen.append(f"joint {jn}: {', '.join(left)}")
 
     def subtree(b: int) -> tuple[int, ...]:
         return tuple(obj_of[int(c)] for c in range(m.nbody) if int(c) in obj_of and _descends(m, int(c), b))
@@ -465,21 +529,162 @@ def _rows(S: int, B: int, like: torch.Tensor, c: int, p: int, D: torch.Tensor, a
     return out.reshape(B, D.shape[1], 6 * S)
 
 
-def floor_corners(R: torch.Tensor, t: torch.Tensor, tw, drives: DriveSet, dt: float) -> tuple:
-    """Where the floor acts, by the rule of :func:`coupled_motor_accelerations`: ``drives.corners`` in the
-    world ``P`` [B, K, 3], their velocities ``u`` [B, K, 3] (from the objects' twists ``tw``,
-    :func:`mdgs.rigid.twist`), which the floor holds [B, K] (within ``CONTACT_GAP`` of it, or reaching it
-    within ``dt``), and which move across it faster than friction could stop within ``dt`` [B, K]
-    (``|u_xy| > mu |g| dt``: they slide, if held). ``R, t`` [B, S, 3, 3], [B, S, 3]: the objects' poses."""
-    f64 = torch.float64
-    obj = torch.as_tensor(drives.corner_obj, device=R.device)
-    P = (R[:, obj] @ torch.as_tensor(drives.corners, dtype=f64, device=R.device).unsqueeze(-1)).squeeze(-1) + t[:, obj]
-    u = tw.vc[:, obj] + torch.linalg.cross(tw.omega[:, obj], P - tw.c[:, obj], dim=-1)
-    h = P[..., 2] - drives.floor
-    held = (h < CONTACT_GAP) | (h + dt * u[..., 2].clamp_max(0.0) < CONTACT_GAP)
-    mu = torch.as_tensor(drives.corner_friction, dtype=f64, device=R.device)
-    slide = u[..., :2].norm(dim=-1) > mu * float(np.linalg.norm(drives.gravity)) * dt
-    return P, u, held, slide
+class Contacts(NamedTuple):
+    """Where the world's surfaces act on the corners (:func:`contacts`); candidates surface after surface.
+
+    P : [B, C, 3] the corner (or rim point) in the world; frame : [B, C, 3, 3] rows two tangents and the surface's
+    outward normal there; u : [B, C, 3] the corner's velocity; gap : [B, C] its distance along the
+    normal (negative inside); held : [B, C] within ``CONTACT_GAP`` of the surface or reaching it within
+    ``dt``; slide : [B, C] moving along the surface faster than friction could stop it within ``dt``
+    (``|u_t| > mu |g| dt``); obj : [C] the corner's object; mu : [C] the pair's friction (the larger of
+    the two geoms', as MuJoCo's).
+    """
+
+    P: torch.Tensor
+    frame: torch.Tensor
+    u: torch.Tensor
+    gap: torch.Tensor
+    held: torch.Tensor
+    slide: torch.Tensor
+    obj: torch.Tensor
+    mu: torch.Tensor
+
+
+def _surface_distance(q: torch.Tensor, kind: str, size: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    """Signed distance [...] (m, negative inside) and outward unit normal [..., 3] of points ``q`` [..., 3]
+    given in a surface's own frame (:class:`Surface`); inside a box or cylinder, the nearest face's."""
+    tiny = torch.finfo(q.dtype).tiny
+    if kind == "plane":
+        return q[..., 2], torch.zeros_like(q).index_fill_(-1, torch.tensor([2], device=q.device), 1.0)
+    if kind in ("sphere", "capsule"):
+        axial = q[..., 2:].clamp(-float(size[1]), float(size[1])) if kind == "capsule" else torch.zeros_like(q[..., 2:])
+        r = q - torch.cat([torch.zeros_like(q[..., :2]), axial], -1)
+        d = r.norm(dim=-1)
+        return d - float(size[0]), r / d.clamp_min(tiny).unsqueeze(-1)
+    if kind == "box":
+        half = torch.as_tensor(size, dtype=q.dtype, device=q.device)
+        out = q - torch.maximum(torch.minimum(q, half), -half)
+        d_out = out.norm(dim=-1)
+        depth = half - q.abs()  # [..., 3], all positive inside
+        i = depth.argmin(-1, keepdim=True)
+        sign = torch.where(torch.gather(q, -1, i) < 0, -1.0, 1.0).to(q.dtype)
+        n_in = torch.zeros_like(q).scatter_(-1, i, sign)
+        outside = d_out > 0
+        return (torch.where(outside, d_out, -torch.gather(depth, -1, i).squeeze(-1)),
+                torch.where(outside.unsqueeze(-1), out / d_out.clamp_min(tiny).unsqueeze(-1), n_in))
+    # cylinder: radius size[0], half length size[1] along z
+    rho = q[..., :2].norm(dim=-1)
+    radial = torch.where((rho > 0).unsqueeze(-1), q[..., :2] / rho.clamp_min(tiny).unsqueeze(-1),
+                         torch.tensor([1.0, 0.0], dtype=q.dtype, device=q.device))
+    sz = torch.where(q[..., 2] < 0, -1.0, 1.0).to(q.dtype)
+    dr, dz = rho - float(size[0]), q[..., 2].abs() - float(size[1])
+    o_r, o_z = dr.clamp_min(0.0), dz.clamp_min(0.0)
+    d_out = torch.hypot(o_r, o_z)
+    n_out = torch.cat([o_r.unsqueeze(-1) * radial, (o_z * sz).unsqueeze(-1)], -1) / d_out.clamp_min(tiny).unsqueeze(-1)
+    side = (dr > dz).unsqueeze(-1)
+    n_in = torch.where(side, torch.cat([radial, torch.zeros_like(sz).unsqueeze(-1)], -1),
+                       torch.cat([torch.zeros_like(radial), sz.unsqueeze(-1)], -1))
+    outside = d_out > 0
+    return torch.where(outside, d_out, torch.maximum(dr, dz)), torch.where(outside.unsqueeze(-1), n_out, n_in)
+
+
+def contacts(R: torch.Tensor, t: torch.Tensor, tw, drives: DriveSet, dt: float) -> Contacts:
+    """Where the world's surfaces act, by the rule of :func:`coupled_motor_accelerations` (:class:`Contacts`).
+
+    ``R, t`` [B, S, 3, 3], [B, S, 3]: the objects' poses; ``tw``: their twists (:func:`mdgs.rigid.twist`).
+    Candidates, surface by surface: every box corner; a cylinder's ``RIM_POINTS`` rim points against a
+    surface that is not a plane, and against a plane each rim's lowest point and two more at +-120
+    degrees (``RIM_SUPPORT``; any three when the rim lies flat). A corner wedged between a floor and a
+    post is held by both."""
+    f64, dev = torch.float64, R.device
+    B = R.shape[0]
+    obj = torch.as_tensor(drives.corner_obj, device=dev)
+    P_all = (R[:, obj] @ torch.as_tensor(drives.corners, dtype=f64, device=dev).unsqueeze(-1)).squeeze(-1) + t[:, obj]
+    on_rim = torch.as_tensor(drives.on_rim, device=dev)
+    corner_mu = torch.as_tensor(drives.corner_friction, dtype=f64, device=dev)
+    Q = len(drives.rim_obj)
+    if Q:  # every rim's centre and axis in the world
+        robj = torch.as_tensor(drives.rim_obj, device=dev)
+        rims = torch.as_tensor(drives.rims, dtype=f64, device=dev)
+        centre = (R[:, robj] @ rims[:, :3].unsqueeze(-1)).squeeze(-1) + t[:, robj]  # [B, Q, 3]
+        axis = (R[:, robj] @ rims[:, 3:6].unsqueeze(-1)).squeeze(-1)
+        radius = rims[:, 6].view(1, Q, 1, 1)
+        phase = torch.tensor([2 * np.pi * k / RIM_SUPPORT for k in range(RIM_SUPPORT)], dtype=f64, device=dev)
+    Ps, objs, mus, gaps, normals = [], [], [], [], []
+    for sf in drives.surfaces:
+        rot = torch.as_tensor(sf.rot, dtype=f64, device=dev)
+        pos = torch.as_tensor(sf.pos, dtype=f64, device=dev)
+        keep = ~on_rim if sf.kind == "plane" else torch.ones_like(on_rim)
+        P, o, mu = P_all[:, keep], obj[keep], corner_mu[keep]
+        if sf.kind == "plane" and Q:
+            n = rot[:, 2]
+            low = -(n - (axis @ n).unsqueeze(-1) * axis)  # towards the plane, across the axis [B, Q, 3]
+            any_ = torch.linalg.cross(axis, torch.eye(3, dtype=f64, device=dev)[axis.abs().argmin(-1)], dim=-1)
+            flat = low.norm(dim=-1, keepdim=True) < 1e-9
+            d0 = torch.where(flat, any_, low)
+            d0 = d0 / d0.norm(dim=-1, keepdim=True)
+            d1 = torch.linalg.cross(axis, d0, dim=-1)
+            ring = (phase.cos().view(1, 1, -1, 1) * d0.unsqueeze(2) + phase.sin().view(1, 1, -1, 1) * d1.unsqueeze(2))
+            support = (centre.unsqueeze(2) + radius * ring).reshape(B, Q * RIM_SUPPORT, 3)
+            P = torch.cat([P, support], 1)
+            o = torch.cat([o, robj.repeat_interleave(RIM_SUPPORT)])
+            mu = torch.cat([mu, torch.as_tensor(drives.rim_friction, dtype=f64, device=dev).repeat_interleave(RIM_SUPPORT)])
+        d, n = _surface_distance((P - pos) @ rot, sf.kind, sf.size)
+        Ps.append(P)
+        objs.append(o)
+        mus.append(mu.clamp_min(sf.friction))
+        gaps.append(d)
+        normals.append(n @ rot.T)
+    P, o, mu = torch.cat(Ps, 1), torch.cat(objs), torch.cat(mus)
+    gap, n = torch.cat(gaps, 1), torch.cat(normals, 1)
+    u = tw.vc[:, o] + torch.linalg.cross(tw.omega[:, o], P - tw.c[:, o], dim=-1)
+    # tangents: n x e with e the world axis least along n, then n x t1
+    e = torch.eye(3, dtype=f64, device=dev)[n.abs().argmin(-1)]
+    t1 = torch.linalg.cross(n, e, dim=-1)
+    t1 = t1 / t1.norm(dim=-1, keepdim=True)
+    frame = torch.stack([t1, torch.linalg.cross(n, t1, dim=-1), n], -2)
+    un = (u * n).sum(-1)
+    held = (gap < CONTACT_GAP) | (gap + dt * un.clamp_max(0.0) < CONTACT_GAP)
+    slide = (u - un.unsqueeze(-1) * n).norm(dim=-1) > mu * float(np.linalg.norm(drives.gravity)) * dt
+    return Contacts(P, frame, u, gap, held, slide, o, mu)
+
+
+def _soft_reference(pos: torch.Tensor, vel: torch.Tensor, lk: Link) -> tuple[torch.Tensor, torch.Tensor]:
+    """MuJoCo's soft constraint for a limit at distance ``pos`` [B] (negative past it) closing at ``vel``
+    [B]: the reference acceleration ``a_ref = -b vel - k d(pos) pos`` and the regularisation
+    ``R = (1 - d) / d * invweight`` (``mj_makeImpedance``: ``b = 2 / (d_max tau)``, ``k = 1 / (d_max tau
+    zeta)^2`` from ``solref = (tau, zeta)``, the impedance ``d`` from ``solimp``'s sigmoid in
+    ``|pos| / width``; ``solref[0] < 0`` gives ``-k, -b`` directly)."""
+    dmin, dmax, width, mid, power = lk.solimp
+    pos = pos - lk.margin
+    if dmin == dmax or width <= 1e-15:
+        d = torch.full_like(pos, (dmin + dmax) / 2)
+    else:
+        x = (pos.abs() / width).clamp(0.0, 1.0)
+        y = torch.where(x <= mid, x ** power / mid ** (power - 1), 1 - (1 - x) ** power / (1 - mid) ** (power - 1))
+        d = dmin + y * (dmax - dmin)
+    d = d.clamp(1e-4, 0.9999)  # mjMINIMP, mjMAXIMP
+    if lk.solref[0] > 0:
+        b, k = 2 / (dmax * lk.solref[0]), 1 / (dmax * lk.solref[0] * lk.solref[1]) ** 2
+    else:
+        b, k = -lk.solref[1] / dmax, -lk.solref[0] / dmax ** 2
+    return -b * vel - k * d * pos, ((1 - d) / d * lk.invweight).clamp_min(1e-15)
+
+
+def _joint_angles(R: torch.Tensor, t: torch.Tensor, lk: Link) -> torch.Tensor:
+    """MuJoCo's ``qpos`` [B] of link ``lk``'s hinge or slide from the objects' poses (:class:`Link`)."""
+    f64, dev = torch.float64, R.device
+    c, p = lk.child, lk.parent
+    Rp = R[:, p] if p >= 0 else torch.eye(3, dtype=f64, device=dev).expand_as(R[:, c])
+    axis = torch.as_tensor(lk.axis, dtype=f64, device=dev)
+    if lk.kind == "hinge":
+        A = Rp.transpose(-1, -2) @ R[:, c] @ torch.as_tensor(lk.frame0, dtype=f64, device=dev).T  # Rot(axis, q - q0)
+        vee = torch.stack([A[:, 2, 1] - A[:, 1, 2], A[:, 0, 2] - A[:, 2, 0], A[:, 1, 0] - A[:, 0, 1]], -1) / 2
+        cos = (A.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2
+        return lk.qpos0 + torch.atan2(vee @ axis, cos)
+    tp = t[:, p] if p >= 0 else torch.zeros_like(t[:, c])
+    rel = (Rp.transpose(-1, -2) @ (t[:, c] - tp).unsqueeze(-1)).squeeze(-1)
+    return lk.qpos0 + (rel - torch.as_tensor(lk.origin, dtype=f64, device=dev)) @ axis
 
 
 def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
@@ -613,24 +818,62 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         gyro = -torch.linalg.cross(w, (Iw @ w.unsqueeze(-1)).squeeze(-1), dim=-1)
         F = F + (moving * torch.cat([T["mass"].view(1, S, 1) * grav.expand(B, S, 3), gyro], -1)).reshape(B, 6 * S)
     C0 = sum(j.shape[1] for j in J)
-    contact = dynamic and drives.floor is not None and len(drives.corner_obj) > 0
-    if contact:
-        obj = torch.as_tensor(drives.corner_obj, device=dev)
-        P, uP, active, slide = floor_corners(R, t, tw, drives, dt)  # [B, K, 3] x2, [B, K] x2
-        arm = P - xs[:, obj]
-        rows, crhs = [], []
-        for k, o in enumerate(drives.corner_obj.tolist()):
-            rows.append(_rows(S, B, xd, o, -1, world, arm[:, k]))
-            wk = w[:, o]
-            crhs.append(-torch.linalg.cross(wk, torch.linalg.cross(wk, arm[:, k], dim=-1), dim=-1) - uP[:, k] / dt)
-        Jc, rc_ = torch.cat(rows, 1).view(B, -1, 3, 6 * S), torch.cat(crhs, -1).view(B, -1, 3)  # per corner
-        mu = torch.as_tensor(drives.corner_friction, dtype=f64, device=dev)  # [K]
-        ut = uP[..., :2]
+    # unilateral candidates: corners against the world's surfaces, joints against their range limits;
+    # each with three rows [B, k, 3, 6S] (two tangents, the normal), their right-hand sides [B, k, 3],
+    # which rows are on [B, k, 3] and whether it is held [B, k]
+    cand_J, cand_C, cand_r, cand_on, cand_held, cand_R = [], [], [], [], [], []
+    if dynamic and (len(drives.corner_obj) or len(drives.rim_obj)):
+        ct = contacts(R, t, tw, drives, dt)
+        arm = ct.P - xs[:, ct.obj]  # [B, C, 3]
+        loc = torch.cat([ct.frame, torch.linalg.cross(arm.unsqueeze(-2).expand_as(ct.frame), ct.frame, dim=-1)], -1)
+        onehot = torch.nn.functional.one_hot(ct.obj, S).to(f64)  # [C, S]
+        Jc = torch.einsum("bcrk,cs->bcrsk", loc, onehot).reshape(B, -1, 3, 6 * S)
+        wk = w[:, ct.obj]
+        want = -torch.linalg.cross(wk, torch.linalg.cross(wk, arm, dim=-1), dim=-1) - ct.u / dt
+        ut = (ct.frame[:, :, :2] @ ct.u.unsqueeze(-1)).squeeze(-1)  # [B, C, 2] the slip
         uhat = ut / ut.norm(dim=-1).clamp_min(torch.finfo(f64).tiny).unsqueeze(-1)
-        # a sliding corner's z column carries the friction it feels: -mu |f_n| along its slip
-        fric = Jc[:, :, 2] - mu.view(1, -1, 1) * (uhat[..., :1] * Jc[:, :, 0] + uhat[..., 1:] * Jc[:, :, 1])
-        Cc = torch.cat([Jc[:, :, :2], torch.where(slide.unsqueeze(-1), fric, Jc[:, :, 2]).unsqueeze(2)], 2)
-        rows_on = torch.stack([~slide, ~slide, torch.ones_like(slide)], -1)  # [B, K, 3]
+        # a sliding corner's normal column carries the friction it feels: -mu |f_n| along its slip
+        fric = Jc[:, :, 2] - ct.mu.view(1, -1, 1) * (uhat[..., :1] * Jc[:, :, 0] + uhat[..., 1:] * Jc[:, :, 1])
+        cand_J.append(Jc)
+        cand_C.append(torch.cat([Jc[:, :, :2], torch.where(ct.slide.unsqueeze(-1), fric, Jc[:, :, 2]).unsqueeze(2)], 2))
+        cand_r.append((ct.frame @ want.unsqueeze(-1)).squeeze(-1))
+        cand_on.append(torch.stack([~ct.slide, ~ct.slide, torch.ones_like(ct.slide)], -1))
+        cand_held.append(ct.held)
+        cand_R.append(torch.full(ct.held.shape + (3,), CONTACT_COMPLIANCE, dtype=f64, device=dev))
+    for lk in drives.links if dynamic else ():
+        if lk.limit is None:
+            continue
+        c, p = lk.child, lk.parent
+        q = _joint_angles(R, t, lk)  # [B]
+        n = world_of(p, lk.axis)[:, 0]
+        wc, wp = w[:, c], (w[:, p] if p >= 0 else zero3)
+        if lk.kind == "hinge":  # qdd = n . (alpha_c - alpha_p) - n . (w_p x (w_c - w_p)), the axis turning with p
+            qd = (n * (wc - wp)).sum(-1)
+            vel = (n * torch.linalg.cross(wp, wc - wp, dim=-1)).sum(-1)
+        else:
+            A = world_of(p, lk.anchor, point=True)[:, 0]
+            v_at = lambda s_: tw.vc[:, s_] + torch.linalg.cross(w[:, s_], A - tw.c[:, s_], dim=-1)  # noqa: E731
+            qd = (n * (v_at(c) - (v_at(p) if p >= 0 else 0.0))).sum(-1)
+            vel = torch.zeros_like(qd)
+        for sign, bound in ((1.0, lk.limit[0]), (-1.0, lk.limit[1])):  # the lower limit pushes q up
+            h, hd = sign * (q - bound), sign * qd
+            a_ref, soft = _soft_reference(h, hd, lk)
+            row = xd.new_zeros(B, 1, 3, 6 * S)
+            row[:, 0, 2] = sign * rate[c][:, 0]
+            r = xd.new_zeros(B, 1, 3)
+            r[:, 0, 2] = a_ref + sign * vel
+            cR = xd.new_ones(B, 1, 3)
+            cR[:, 0, 2] = soft
+            cand_J.append(row)
+            cand_C.append(row)
+            cand_r.append(r)
+            cand_R.append(cR)
+            cand_on.append(torch.tensor([False, False, True], device=dev).expand(B, 1, 3))
+            cand_held.append(((h < lk.margin) | (h + dt * hd.clamp_max(0.0) < lk.margin)).unsqueeze(1))
+    contact = bool(cand_J)
+    if contact:
+        Jc, Cc, rc_ = torch.cat(cand_J, 1), torch.cat(cand_C, 1), torch.cat(cand_r, 1)
+        rows_on, active, Rc = torch.cat(cand_on, 1), torch.cat(cand_held, 1), torch.cat(cand_R, 1)
     Jm = torch.cat(J, 1) if J else xd.new_zeros(B, 0, 6 * S)
     b0 = torch.cat(rhs, -1) if rhs else xd.new_zeros(B, 0)
     for _ in range(CONTACT_PASSES if contact else 1):
@@ -644,10 +887,11 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             Jsel = torch.gather(Jc, 1, idx).reshape(B, 3 * n_on, 6 * S)
             Csel = torch.gather(Cc, 1, idx).reshape(B, 3 * n_on, 6 * S)
             rsel = torch.gather(rc_, 1, sel.view(B, n_on, 1).expand(-1, -1, 3)).reshape(B, 3 * n_on)
+            Rsel = torch.gather(Rc, 1, sel.view(B, n_on, 1).expand(-1, -1, 3)).reshape(B, 3 * n_on)
             Jall = torch.cat([Jm, Jsel * on.unsqueeze(-1)], 1)
             Call = torch.cat([Jm, Csel * on.unsqueeze(-1)], 1)
             ball = torch.cat([b0, rsel * on], -1)
-            diag = torch.cat([xd.new_zeros(B, C0), torch.where(on > 0, -CONTACT_COMPLIANCE, 1.0)], -1)
+            diag = torch.cat([xd.new_zeros(B, C0), torch.where(on > 0, -Rsel, 1.0)], -1)
         else:
             Jall, Call, ball, diag = Jm, Jm, b0, xd.new_zeros(B, C0)
         K = torch.cat([torch.cat([M, Call.transpose(-1, -2)], -1),
@@ -655,7 +899,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         sol = torch.linalg.solve(K, torch.cat([F, ball], -1))
         if not contact:
             break
-        lz = sol[:, 6 * S + C0:].view(B, -1, 3)[..., 2]  # the floor's push on each held corner is -lz
+        lz = sol[:, 6 * S + C0:].view(B, -1, 3)[..., 2]  # the push of each held candidate's surface is -lz
         pulls = torch.zeros_like(active).scatter(1, sel, (lz > 0) & (on.view(B, -1, 3)[..., 2] > 0))
         if not bool(pulls.any()):
             break

@@ -51,9 +51,9 @@ def _box_nodes(model):
     return np.ones(8, int), 0.5 * H * signs
 
 
-def _box_acc(R, t, w=(0.0, 0.0, 0.0), vc=(0.0, 0.0, 0.0), dt=0.01):
+def _box_acc(R, t, w=(0.0, 0.0, 0.0), vc=(0.0, 0.0, 0.0), dt=0.01, xml=BOX):
     """Node accelerations [8, 3] of the test box at pose (R, t) with twist (vc at its centre, w)."""
-    m = mujoco.MjModel.from_xml_string(BOX)
+    m = mujoco.MjModel.from_xml_string(xml)
     nb, ref = _box_nodes(m)
     ds = drives_of(m, nb, ref)
     x = torch.tensor(ref @ R.T + t)[None]
@@ -205,10 +205,12 @@ def test_the_rigid_tree_is_a_reference_of_mdgs_evaluate_and_does_not_take_the_mo
 
 
 LEFT_OUT = """<mujoco model="left-out">
+  <compiler angle="radian"/>
   <worldbody>
     <geom name="floor" type="plane" size="5 5 0.1"/>
     <geom name="ramp" type="plane" size="1 1 0.1" euler="0.3 0 0"/>
     <geom name="post" type="cylinder" size="0.05 0.2" pos="1 0 0.2"/>
+    <geom name="rock" type="ellipsoid" size="0.1 0.1 0.05" pos="2 0 0"/>
     <body name="base" pos="0 0 0.5">
       <freejoint/>
       <geom type="box" size="0.1 0.1 0.1" mass="1"/>
@@ -217,31 +219,221 @@ LEFT_OUT = """<mujoco model="left-out">
         <geom name="ball" type="sphere" size="0.05" mass="0.2"/>
         <geom name="arm_box" type="box" size="0.05 0.02 0.02" mass="0.1"/>
       </body>
+      <body name="hand" pos="0 0.2 0">
+        <joint name="wrist" type="ball" range="0 0.5"/>
+        <geom name="hand_box" type="box" size="0.02 0.02 0.02" mass="0.1"/>
+      </body>
     </body>
   </worldbody>
 </mujoco>
 """
 
 
-def test_what_the_forward_dynamics_leaves_out_of_a_scene_is_listed_and_its_users_are_warned(tiny_cubli):
+def test_what_the_forward_dynamics_leaves_out_of_a_scene_is_listed_and_its_users_are_warned(tiny_cubli, monkeypatch):
     m = mujoco.MjModel.from_xml_string(LEFT_OUT)
-    nb = np.array([1] * 4 + [2] * 4)
-    signs = np.array([[a, b, 0.5] for a in (-1, 1) for b in (-1, 1)] * 2) * 0.05
+    nb = np.array([1] * 4 + [2] * 4 + [3] * 4)
+    signs = np.array([[a, b, 0.5] for a in (-1, 1) for b in (-1, 1)] * 3) * 0.05
     ds = drives_of(m, nb, signs)
     text = "\n".join(ds.unseen)
-    assert "geom ramp (plane): not a floor" in text
-    assert "geom post (cylinder of the world)" in text
+    assert "geom rock (ellipsoid of the world): nothing touches it" in text
     assert "geom ball (sphere): no contact points" in text
-    assert "joint elbow: its range limit, its damping" in text
-    assert not any(u.startswith("geom floor") for u in ds.unseen)  # the +z plane is the floor
-    assert len(ds.unseen) == 4 and len(ds.corner_obj) == 16  # the two boxes' corners
-    # the Cubli's wall and block: the rigid tree and MDGS's prior say so when bound
+    assert "joint elbow: its damping" in text  # its range limit is held
+    assert "joint wrist: its range limit" in text  # a ball joint's is not
+    assert len(ds.unseen) == 4 and len(ds.corner_obj) == 24  # the three boxes' corners
+    assert [sf.name for sf in ds.surfaces] == ["floor", "ramp", "post"]
+    assert [lk.limit for lk in ds.links if lk.kind == "hinge"] == [(-1.0, 1.0)]
+    # the Cubli's wall and block are boxes of the world, touched: nothing to warn of
     tr, te = load_split(tiny_cubli / "train.h5"), load_split(tiny_cubli / "test.h5")
     ct = MODELS["constant-twist"]
-    with pytest.warns(UserWarning, match="geom wall .*geom block"):
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        drives = drives_of(te.mj_model(), te.static["node_body"], te.static["node_centroid"])
+        assert drives.unseen == [] and {sf.name for sf in drives.surfaces} >= {"wall", "block"}
+    # a scene with something unseen: the rigid tree and MDGS's prior say so when bound
+    import mdgs.models.mdgs as mdgs_module
+    import mdgs.models.references as references_module
+
+    def with_unseen(*args):
+        out = drives_of(*args)
+        out.unseen.append("joint hip: its spring")
+        return out
+
+    monkeypatch.setattr(references_module, "drives_of", with_unseen)
+    monkeypatch.setattr(mdgs_module, "drives_of", with_unseen)
+    with pytest.warns(UserWarning, match="rigid tree.*joint hip: its spring"):
         ct.from_data(te, ct.Config(dynamics=True, joints=True)).bind(te)
-    with pytest.warns(UserWarning, match="dynamics.* prior .*geom wall"):
+    with pytest.warns(UserWarning, match="dynamics.* prior .*joint hip: its spring"):
         MODELS["mdgs"].from_data(tr, MODELS["mdgs"].Config(actuation="dynamics")).bind(te)
+
+
+SURFACES = """<mujoco><compiler angle="radian"/><worldbody>
+  <geom name="plane" type="plane" size="1 1 .1" euler="0.3 0.2 0"/>
+  <geom name="box" type="box" size=".1 .2 .3" pos="1 0 0" euler="0.1 0.5 0.2"/>
+  <geom name="cylinder" type="cylinder" size=".1 .2" pos="2 0 0" euler="0.4 0 0.3"/>
+  <geom name="capsule" type="capsule" size=".1 .2" pos="3 0 0" euler="0.4 0 0.3"/>
+  <geom name="sphere" type="sphere" size=".15" pos="4 0 0"/>
+  <body name="probe" mocap="true"><geom name="point" type="sphere" size="1e-4" contype="0" conaffinity="0"/></body>
+</worldbody></mujoco>"""
+
+
+def test_the_distance_of_a_point_to_each_kind_of_world_surface_is_mujocos():
+    """Signed distance (negative inside) from random points near each surface kind, against MuJoCo's
+    ``mj_geomDistance`` to a 0.1 mm sphere at the point (plus its radius): 1e-12 m, round-off. The normal
+    points from the surface's nearest point to the point (MuJoCo's segment), away from it inside."""
+    from mdgs.actuation import SURFACE_KINDS, _surface_distance
+
+    m = mujoco.MjModel.from_xml_string(SURFACES)
+    d = mujoco.MjData(m)
+    rng = np.random.default_rng(0)
+    point = m.ngeom - 1
+    for g in range(point):
+        kind = mujoco.mjtGeom(int(m.geom_type[g])).name.removeprefix("mjGEOM_").lower()
+        assert kind in SURFACE_KINDS
+        inside = 0
+        for _ in range(100):
+            p = m.geom_pos[g] + rng.normal(size=3) * 0.15
+            d.mocap_pos[0] = p
+            mujoco.mj_forward(m, d)
+            seg = np.zeros(6)
+            expect = mujoco.mj_geomDistance(m, d, g, point, 1.0, seg) + 1e-4
+            rot = d.geom_xmat[g].reshape(3, 3)
+            got, n = _surface_distance(torch.tensor((p - d.geom_xpos[g]) @ rot), kind, m.geom_size[g])
+            assert abs(float(got) - expect) < 1e-12, kind
+            inside += expect < 0
+            if abs(expect) > 1e-3:
+                towards = (seg[3:] - seg[:3]) / np.linalg.norm(seg[3:] - seg[:3])
+                np.testing.assert_allclose(rot @ n.numpy(), np.sign(expect) * towards, atol=1e-6)
+        assert 5 < inside < 95  # both sides were tried
+
+
+def _ramp(theta, mu):
+    return f"""<mujoco model="ramp"><compiler angle="radian"/><option gravity="0 0 -9.81"/><worldbody>
+      <geom name="ramp" type="plane" size="5 5 0.1" euler="{theta} 0 0" friction="{mu} 0.005 0.0001"/>
+      <body name="box" pos="0 0 1"><freejoint/>
+        <geom type="box" size="{H} {H} {H}" mass="2" friction="{mu} 0.005 0.0001"/></body>
+    </worldbody></mujoco>"""
+
+
+def test_a_box_sliding_down_a_tilted_plane_accelerates_at_g_sin_minus_mu_g_cos():
+    """On a plane tilted by theta about x, flat on its face and sliding down at 0.5 m/s (faster than friction
+    stops in a frame), the box accelerates down the slope at g (sin theta - mu cos theta) and not into or
+    off the plane: the contact frame follows the surface's normal, not the world's z."""
+    theta, mu = 0.3, 0.1
+    R = _rot_x(theta)
+    down, normal = R @ np.array([0, -1.0, 0]), R @ np.array([0, 0, 1.0])
+    _, a, alpha, _ = _box_acc(R, H * normal, vc=0.5 * down, xml=_ramp(theta, mu))
+    expect = G * (np.sin(theta) - mu * np.cos(theta))
+    np.testing.assert_allclose(a, expect * down, atol=1e-4 * G)
+    np.testing.assert_allclose(alpha, 0, atol=1e-3)
+
+
+WALL = f"""<mujoco model="wall"><option gravity="0 0 -9.81"/><worldbody>
+  <geom name="floor" type="plane" size="5 5 0.1"/>
+  <geom name="wall" type="box" size="0.1 1 0.5" pos="{H + 0.1} 0 0.5"/>
+  <geom name="table" type="box" size="0.3 0.3 0.2" pos="-1 0 0.2"/>
+  <body name="box" pos="0 0 1"><freejoint/><geom type="box" size="{H} {H} {H}" mass="2"/></body>
+</worldbody></mujoco>"""
+
+
+def test_a_box_sliding_into_a_wall_is_stopped_and_a_box_on_a_table_rests():
+    """World boxes are surfaces: sliding along the floor at 0.5 m/s into a wall it touches, the box stops
+    within the frame (a = -v / dt, no turn, the floor still holding it); at rest on a table (a box of the
+    world 0.4 m high) it stays at rest."""
+    _, a, alpha, _ = _box_acc(np.eye(3), np.array([0, 0, H]), vc=(0.5, 0.0, 0.0), xml=WALL)
+    np.testing.assert_allclose(a, [-0.5 / 0.01, 0, 0], atol=1e-3)
+    np.testing.assert_allclose(alpha, 0, atol=1e-3)
+    acc, _, _, _ = _box_acc(np.eye(3), np.array([-1, 0, 0.4 + H]), xml=WALL)
+    assert np.abs(acc).max() < 1e-4
+
+
+CHAIN = """<mujoco model="chain"><compiler angle="radian"/><option gravity="0 0 -9.81"/><worldbody>
+  <body name="base" pos="0 0 1"><freejoint/><geom type="box" size="0.1 0.1 0.1" mass="1"/>
+    <body name="arm" pos="0.2 0 0" euler="0.3 -0.2 0.5">
+      <joint name="elbow" type="hinge" axis="0.3 1 0.2" pos="-0.05 0 0" ref="0.4" range="-1 1"/>
+      <geom type="box" size="0.05 0.02 0.02" mass="0.2"/>
+      <body name="hand" pos="0.1 0 0" euler="0 0.4 0">
+        <joint name="reach" type="slide" axis="1 0.2 0" ref="0.05" range="-0.1 0.1"/>
+        <geom type="box" size="0.02 0.02 0.02" mass="0.1"/>
+      </body>
+    </body>
+  </body>
+</worldbody></mujoco>"""
+
+
+def test_the_joint_angles_read_from_the_bodies_poses_are_mujocos_qpos():
+    """A hinge (tilted axis, ``ref``, turned body frame) and a slide below it on a free base, at random
+    configurations: the angle and displacement read from the bodies' frames (MuJoCo's ``xmat, xpos``)
+    are MuJoCo's ``qpos`` to 1e-9."""
+    from mdgs.actuation import _joint_angles
+
+    m = mujoco.MjModel.from_xml_string(CHAIN)
+    d = mujoco.MjData(m)
+    ds = drives_of(m, np.array([1] * 3 + [2] * 3 + [3] * 3), np.tile(np.eye(3) * 0.01, (3, 1)))
+    hinge, slide = (next(lk for lk in ds.links if lk.kind == k) for k in ("hinge", "slide"))
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        d.qpos[:3] = rng.normal(size=3)
+        q = rng.normal(size=4)
+        d.qpos[3:7] = q / np.linalg.norm(q)
+        d.qpos[7], d.qpos[8] = rng.uniform(-3, 3), rng.uniform(-0.2, 0.3)
+        mujoco.mj_kinematics(m, d)
+        R = torch.tensor(d.xmat[1:].reshape(1, 3, 3, 3))
+        t = torch.tensor(d.xpos[1:].reshape(1, 3, 3))
+        assert abs(float(_joint_angles(R, t, hinge)[0]) - d.qpos[7]) < 1e-9
+        assert abs(float(_joint_angles(R, t, slide)[0]) - d.qpos[8]) < 1e-9
+
+
+PENDULUM = """<mujoco model="pendulum"><compiler angle="radian"/><option gravity="0 0 -9.81"/><worldbody>
+  <body name="rod" pos="0 0 1">
+    <joint name="swing" type="hinge" axis="1 0 0" range="0.2 1.0"/>
+    <geom type="box" size="0.02 0.02 0.2" pos="0 0 -0.2" mass="1"/>
+  </body>
+</worldbody></mujoco>"""
+
+
+@pytest.mark.parametrize("phi, rate", [(0.6, 0.0), (0.6, 1.0), (0.15, 0.0), (0.19, -1.0), (1.05, 2.0),
+                                       (1.1, -2.0), (0.25, -2.0)])
+def test_a_pendulum_swings_freely_inside_its_range_and_against_its_soft_limit_as_in_mujoco(phi, rate):
+    """A 0.4 m rod hinged at its top end, range [0.2, 1.0] rad (it hangs at 0, outside), at angle phi
+    turning at ``rate``: inside the range it swings as the textbook pendulum, past a limit MuJoCo's soft
+    limit (its ``solref``, ``solimp`` reference acceleration and regularisation) pushes it back: the
+    angular acceleration is MuJoCo's ``qacc`` (``mj_forward``) to 1e-6 relative, both ways."""
+    m = mujoco.MjModel.from_xml_string(PENDULUM)
+    nodes = np.array([[0.0, 0.0, -0.1], [0.0, 0.02, -0.3], [0.02, 0.0, -0.3], [0.0, -0.02, -0.2]])
+    ds = drives_of(m, np.ones(4, int), nodes)
+    R = _rot_x(phi)
+    x = torch.tensor(nodes @ R.T + [0, 0, 1.0])[None]
+    v = torch.tensor(np.cross([rate, 0, 0], nodes @ R.T))[None]
+    seg, mass = torch.zeros(4, dtype=torch.long), torch.full((4,), 0.25, dtype=torch.float64)
+    acc = coupled_motor_accelerations(x, torch.zeros(1, 0), ds, torch.tensor(nodes), seg, 1, v=v, mass=mass, dt=0.01)
+    _, alpha = project(acc, x, twist(x, v, seg, 1, mass), seg, 1, mass)
+    d = mujoco.MjData(m)
+    d.qpos[0], d.qvel[0] = phi, rate
+    mujoco.mj_forward(m, d)
+    assert (d.nefc > 0) == (not 0.2 <= phi <= 1.0)  # MuJoCo's limit is on past the range only
+    np.testing.assert_allclose(float(alpha[0, 0, 0]), d.qacc[0], rtol=1e-6, atol=1e-9)
+    if 0.2 <= phi <= 1.0:  # and there it is the textbook's
+        inertia = float(m.body_inertia[1][0]) + 1.0 * 0.2 ** 2
+        np.testing.assert_allclose(d.qacc[0], -G * 0.2 * np.sin(phi) / inertia, rtol=1e-9)
+
+
+def test_a_pendulum_about_to_pass_its_limit_within_the_frame_is_pushed_back_already():
+    """0.05 rad inside its range at 6 rad/s towards the limit, one 10 ms frame would take it 0.01 rad past:
+    the limit acts already (MuJoCo, stepping 20 times finer, would switch it on within the frame), so the
+    rod decelerates faster than gravity alone would turn it."""
+    m = mujoco.MjModel.from_xml_string(PENDULUM)
+    nodes = np.array([[0.0, 0.0, -0.1], [0.0, 0.02, -0.3], [0.02, 0.0, -0.3], [0.0, -0.02, -0.2]])
+    ds = drives_of(m, np.ones(4, int), nodes)
+    R = _rot_x(0.25)
+    x = torch.tensor(nodes @ R.T + [0, 0, 1.0])[None]
+    v = torch.tensor(np.cross([-6.0, 0, 0], nodes @ R.T))[None]
+    seg, mass = torch.zeros(4, dtype=torch.long), torch.full((4,), 0.25, dtype=torch.float64)
+    acc = coupled_motor_accelerations(x, torch.zeros(1, 0), ds, torch.tensor(nodes), seg, 1, v=v, mass=mass, dt=0.01)
+    _, alpha = project(acc, x, twist(x, v, seg, 1, mass), seg, 1, mass)
+    inertia = float(m.body_inertia[1][0]) + 1.0 * 0.2 ** 2
+    assert float(alpha[0, 0, 0]) > 10 * abs(G * 0.2 * np.sin(0.25) / inertia)
 
 
 def test_the_trapezoidal_rigid_tree_is_exact_for_a_free_fall_and_the_semi_implicit_one_is_not():

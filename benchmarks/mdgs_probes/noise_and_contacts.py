@@ -17,7 +17,7 @@ import sys
 import numpy as np
 import torch
 
-from mdgs.actuation import coupled_motor_accelerations, drives_of, floor_corners
+from mdgs.actuation import contacts, coupled_motor_accelerations, drives_of
 from mdgs.data.split import load_split
 from mdgs.models import MODELS
 from mdgs.models.base import batch_of
@@ -41,11 +41,11 @@ moving = ~sc.static
 
 
 def corner_sets(x, v):
-    """[B, K] held and sliding corners of frame (x, v), by the forward dynamics' own rule."""
+    """[B, C] held and sliding (corner, surface) pairs of frame (x, v), by the forward dynamics' own rule."""
     x, v = x.double(), v.double()
     R, t = kabsch(ref, x, seg, n)
-    _, _, held, slide = floor_corners(R, t, twist(x, v, seg, n, mass), ds, dt)
-    return held, held & slide
+    ct = contacts(R, t, twist(x, v, seg, n, mass), ds, dt)
+    return ct.held, ct.held & ct.slide
 
 
 def prior_dv(x, v):
