@@ -43,11 +43,12 @@ constraints; its docstring). Exact for the motors alone, it is the worse prior w
 hold the parents (docs/mdgs-experiments.md, "The whole tree's response").
 
 **The whole tree's forward dynamics** (the same function given the node velocities): everything
-else a rigid tree on a floor feels joins the motors - gravity, the gyroscopic torques, the joints'
-velocity terms and the floor's contact with box corners and cylinder rims, sticking or sliding with
-Coulomb friction (its docstring).
-In free flight it is MuJoCo's ``qacc`` to 1e-9 (tests/test_dynamics.py); on the floor it is a rigid,
-inelastic contact model instead of MuJoCo's soft one. Stepped once per frame it is the
+else a rigid tree among static obstacles feels joins the motors - gravity, the gyroscopic torques, the
+joints' velocity terms, the joints' range limits (MuJoCo's soft limits) and the contact of box corners
+and cylinder rims with the world's planes, boxes, spheres, capsules and cylinders, sticking or sliding
+with Coulomb friction (its docstring).
+In free flight it is MuJoCo's ``qacc`` to 1e-9, against a limit to 1e-6 (tests/test_dynamics.py); in
+contact it is a rigid, inelastic contact model instead of MuJoCo's soft one. Stepped once per frame it is the
 "rigid tree" reference (:mod:`mdgs.models.references`) and MDGS's ``actuation = "dynamics"`` prior.
 
 The other forms have no velocity terms (gyroscopic, Coriolis), which do not depend on the control.
@@ -68,13 +69,13 @@ import torch
 from mdgs.rigid import twist
 from mdgs.structure import fixes_rotation, kabsch, segment_mean
 
-#: Forward dynamics' floor contact (:func:`coupled_motor_accelerations`): a box corner closer to the floor than
+#: Forward dynamics' contact (:func:`coupled_motor_accelerations`): a box corner closer to a surface than
 #: this (m) holds; MuJoCo's soft contacts rest a few tenths of a millimetre deep.
 CONTACT_GAP = 2e-3
 #: Compliance of a held corner (m/s^2 per N): small against the bodies' 1/mass, it only makes four
 #: corners of a face (twelve rows for six degrees of freedom) share the load.
 CONTACT_COMPLIANCE = 1e-6
-#: Passes of the active-set search that lets go of corners the floor would pull.
+#: Passes of the active-set search that lets go of corners a surface would pull (and limits that would pull).
 CONTACT_PASSES = 4
 #: Points on each rim of a colliding cylinder that stand in for it as corners against curved or bounded
 #: surfaces (a 16-gon's rim is within 2 % of the radius of the circle's); against a plane a rim touches
@@ -713,28 +714,41 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     :func:`motor_accelerations`; float64 inside, returned in ``x``'s dtype.
 
     **Forward dynamics** (given the node velocities ``v`` [B, N, 3], the element ``mass`` [N] and the frame
-    ``dt``): the same system with everything else a rigid tree on a floor feels, so that the result
-    is MuJoCo's ``qacc`` up to its contact model. The right-hand side gains gravity ``M_s g`` on every
-    moving object and the gyroscopic torque ``-w_s x (I_s^w w_s)``; each constraint row gains its
+    ``dt``): the same system with everything else a rigid tree among static obstacles feels, so that the
+    result is MuJoCo's ``qacc`` up to its contact model. The right-hand side gains gravity ``M_s g`` on
+    every moving object and the gyroscopic torque ``-w_s x (I_s^w w_s)``; each constraint row gains its
     velocity term (a hinge or ball anchor: ``-(w_c x (w_c x r_c) - w_p x (w_p x r_p))``; a hinge's
     two cross-axis rows ``p . (w_p x (w_c - w_p))``, the axis turning with the parent; slides without
-    theirs). The twists ``w_s`` are the least-squares fits of :func:`mdgs.rigid.twist`. Floor contact:
-    every corner of a colliding box, and each of ``RIM_POINTS`` points on either rim of a colliding
-    cylinder (``drives.corners``; spheres, capsules and meshes are not seen), that is within ``CONTACT_GAP`` of the floor, or
-    would reach it within ``dt``, is held: while it moves across the floor slower than friction could
-    stop it within the frame (``mu |g| dt``, ``mu`` = ``drives.corner_friction``) it sticks, three rows
-    holding its acceleration at ``-w x (w x r) - u / dt`` (``u`` its velocity: an inelastic, sticking
-    impact over one frame); faster, it slides: only the normal row is held and the floor's push ``f_n``
-    comes with Coulomb friction ``mu f_n`` against the slip (the row's column in the upper right of
-    the system carries it, so the system is not symmetric). The rows have a compliance of
-    ``CONTACT_COMPLIANCE`` so that four corners of a face (twelve rows for six degrees of freedom)
-    share the load in the least-squares way (the held corners of a batch are gathered into as many
-    slots as its most held). A corner whose floor would have to pull it down is let go and the system
-    solved again (``CONTACT_PASSES`` passes, an active-set search). Not modelled: the friction cone of a
-    sticking corner (it holds whatever tangential force sticking takes), rolling and torsional
-    friction, joint limits, damping and springs, and contact with any other geom (the Cubli's wall and
-    block, rotational-center's posts): ``drives.unseen`` names what a scene has of these, and the rigid
-    tree and MDGS's "dynamics" prior warn with it when bound (:func:`warn_unseen`).
+    theirs). The twists ``w_s`` are the least-squares fits of :func:`mdgs.rigid.twist`.
+
+    *Contact* with the world's colliding geoms (``drives.surfaces``: planes, boxes, spheres, capsules,
+    cylinders; :func:`contacts` lists the candidates): every corner of a colliding box of a moving
+    object, and a colliding cylinder's rims (``RIM_POINTS`` points each against curved or bounded
+    surfaces, the exact lowest point and two more, ``RIM_SUPPORT``, against a plane; spheres, capsules
+    and meshes of moving objects have no points), that is within ``CONTACT_GAP`` of a surface, or would
+    reach it within ``dt``, is held: while it moves along the surface slower than friction could stop
+    it within the frame (``mu |g| dt``, ``mu`` the larger of the two geoms') it sticks, three rows (two
+    tangents and the surface's normal) holding its acceleration at ``-w x (w x r) - u / dt`` (``u`` its
+    velocity: an inelastic, sticking impact over one frame); faster, it slides: only the normal row is
+    held and the surface's push ``f_n`` comes with Coulomb friction ``mu f_n`` against the slip (the
+    row's column in the upper right of the system carries it, so the system is not symmetric). The rows
+    have a compliance of ``CONTACT_COMPLIANCE`` so that four corners of a face (twelve rows for six
+    degrees of freedom) share the load in the least-squares way (the held candidates of a batch are
+    gathered into as many slots as its most held).
+
+    *Range limits* of hinges and slides (``Link.limit``): past a limit, or about to pass it within
+    ``dt``, one row holds the joint's acceleration as MuJoCo's soft constraint does, ``J z - R l = a_ref``
+    (:func:`_soft_reference`: MuJoCo's reference acceleration and regularisation from the joint's
+    ``solref``, ``solimp`` and ``dof_invweight0``), so a joint presses a few hundredths of a radian past
+    its range under load as in the data.
+
+    A candidate whose surface or limit would have to pull is let go and the system solved again
+    (``CONTACT_PASSES`` passes, an active-set search). Not modelled: the friction cone of a sticking
+    corner (it holds whatever tangential force sticking takes), rolling and torsional friction, the
+    softness of MuJoCo's contacts (tried, worse at one step per frame: docs/mdgs-experiments.md), limits
+    of ball joints, damping, springs and friction loss, and contact between moving bodies or with
+    other geoms: ``drives.unseen`` names what a scene has of these, and the rigid tree and MDGS's
+    "dynamics" prior warn with it when bound (:func:`warn_unseen`).
     """
     dynamic = v is not None
     if not drives and not dynamic:
@@ -852,8 +866,9 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             vel = (n * torch.linalg.cross(wp, wc - wp, dim=-1)).sum(-1)
         else:
             A = world_of(p, lk.anchor, point=True)[:, 0]
-            v_at = lambda s_: tw.vc[:, s_] + torch.linalg.cross(w[:, s_], A - tw.c[:, s_], dim=-1)  # noqa: E731
-            qd = (n * (v_at(c) - (v_at(p) if p >= 0 else 0.0))).sum(-1)
+            v_c = tw.vc[:, c] + torch.linalg.cross(wc, A - tw.c[:, c], dim=-1)
+            v_p = tw.vc[:, p] + torch.linalg.cross(wp, A - tw.c[:, p], dim=-1) if p >= 0 else 0.0
+            qd = (n * (v_c - v_p)).sum(-1)
             vel = torch.zeros_like(qd)
         for sign, bound in ((1.0, lk.limit[0]), (-1.0, lk.limit[1])):  # the lower limit pushes q up
             h, hd = sign * (q - bound), sign * qd

@@ -459,3 +459,35 @@ def test_the_trapezoidal_rigid_tree_is_exact_for_a_free_fall_and_the_semi_implic
         expect = x0 + v0 * dt + drop * torch.tensor([0.0, 0.0, -G]) * dt ** 2
         np.testing.assert_allclose(st.x.numpy(), expect.numpy(), atol=1e-9)
         np.testing.assert_allclose(st.v.numpy(), (v0 + torch.tensor([0.0, 0.0, -G]) * dt).numpy(), atol=1e-9)
+
+
+SLIDER = """<mujoco model="slider"><compiler angle="radian"/><option gravity="0 0 -9.81"/><worldbody>
+  <body name="carriage" pos="0 0 1" euler="0 0.4 0">
+    <joint name="rail" type="slide" axis="0 0 1" range="-0.1 0.1" ref="0.02"/>
+    <geom type="box" size="0.05 0.05 0.05" mass="2"/>
+  </body>
+</worldbody></mujoco>"""
+
+
+@pytest.mark.parametrize("q, rate", [(0.0, 0.3), (-0.12, -0.5), (0.13, 0.2), (-0.105, 0.4)])
+def test_a_slide_on_a_tilted_rail_moves_as_in_mujoco_inside_and_past_its_range(q, rate):
+    """A carriage on a rail tilted by 0.4 rad (``ref`` 0.02): inside its range it slides down at
+    g cos(0.4); past either limit MuJoCo's soft limit pushes it back; its acceleration along the rail
+    is MuJoCo's ``qacc`` to 1e-6 relative."""
+    m = mujoco.MjModel.from_xml_string(SLIDER)
+    d = mujoco.MjData(m)
+    d.qpos[0], d.qvel[0] = q, rate
+    mujoco.mj_forward(m, d)
+    nodes = np.array([[0.03, 0.0, 0.0], [0.0, 0.03, 0.0], [0.0, 0.0, 0.03], [-0.02, -0.02, -0.02]])
+    R, t = d.xmat[1].reshape(3, 3), d.xpos[1]
+    axis = R @ np.array([0.0, 0.0, 1.0])
+    x = torch.tensor(nodes @ R.T + t)[None]
+    v = torch.tensor(np.tile(rate * axis, (4, 1)))[None]
+    seg, mass = torch.zeros(4, dtype=torch.long), torch.full((4,), 0.5, dtype=torch.float64)
+    ds = drives_of(m, np.ones(4, int), nodes)
+    acc = coupled_motor_accelerations(x, torch.zeros(1, 0), ds, torch.tensor(nodes), seg, 1, v=v, mass=mass, dt=0.01)
+    got = float(acc[0].mean(0).numpy() @ axis)
+    assert (d.nefc > 0) == (not -0.1 <= q <= 0.1)
+    np.testing.assert_allclose(got, d.qacc[0], rtol=1e-6, atol=1e-9)
+    if -0.1 <= q <= 0.1:
+        np.testing.assert_allclose(got, -G * np.cos(0.4), rtol=1e-9)

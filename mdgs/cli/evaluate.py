@@ -58,7 +58,7 @@ def evaluate_cmd(
                                              "(projected onto the joints, as MDGS), constant-twist:motors+joints, or with "
                                              "+coupled the motors' response of the whole tree (parents recoiling), "
                                              "constant-twist:dynamics+joints (the rigid tree: the MJCF's forward dynamics "
-                                             "with floor contact, one step per frame); "
+                                             "with contact and limits, one step per frame); "
                                              "repeatable. constant-twist "
                                              "is always included."),
     device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),

@@ -133,8 +133,8 @@ class MDGSConfig:
         what the recoil, contacts and coupling add; F as in the paper), "step" (both), "coupled"
         (as "prior" with the motors' response of the whole tree, the parents recoiling,
         :func:`mdgs.actuation.coupled_motor_accelerations`), "dynamics" (as "prior" with the whole
-        tree's forward dynamics: motors, gravity, velocity terms and floor contact with friction at box
-        corners, the same function given the velocities; g learns what that one-step-per-frame
+        tree's forward dynamics: motors, gravity, velocity terms, range limits and contact with the
+        world's surfaces with friction at box corners and cylinder rims, the same function given the velocities; g learns what that one-step-per-frame
         rigid tree misses, and the "rigid tree" reference is what it simulates untrained).
     gravity_prior : add the scene's gravity over ``dt`` (``g dt``, MJCF ``opt.gravity``) to the
         velocity increment of every moving node, as ``actuation = "prior"`` adds the motors' response,

@@ -12,8 +12,9 @@ Both meet the :class:`~mdgs.models.base.Simulator` contract and have nothing to 
   the same projection MDGS applies to its simulated steps), so hinged bodies stay hinged: it is
   what an MDGS whose network outputs zero simulates, and the reference that shows what training
   adds to MDGS. With ``dynamics=True`` ("rigid tree") the bodies take the whole tree's forward
-  dynamics instead (motors, gravity, velocity terms, floor contact with friction at box corners and
-  cylinder rims; :func:`mdgs.actuation.coupled_motor_accelerations` given the velocities): a
+  dynamics instead (motors, gravity, velocity terms, range limits, contact with the world's surfaces
+  with friction at box corners and cylinder rims; :func:`mdgs.actuation.coupled_motor_accelerations`
+  given the velocities): a
   hand-written simulator of the scene's MJCF at one semi-implicit Euler step per frame, and what an
   MDGS with ``actuation="dynamics"`` simulates untrained.
 - :class:`MuJoCoReference` (``mujoco``): the physics engine that made the data, replaying
@@ -59,8 +60,8 @@ class ConstantTwistConfig:
     joints : project every step onto the scene's joints (:func:`mdgs.joints.project_joints`, as
         MDGS's ``joints``); the label gains "+ joints".
     dynamics : the whole tree's forward dynamics instead of the motors' response alone: motors,
-        gravity, the velocity terms and floor contact with friction at box corners
-        (:func:`mdgs.actuation.coupled_motor_accelerations` given the velocities), integrated by
+        gravity, the velocity terms, range limits and contact with the world's surfaces with friction at
+        box corners and cylinder rims (:func:`mdgs.actuation.coupled_motor_accelerations` given the velocities), integrated by
         semi-implicit Euler over the frame; the label is "rigid tree" (a hand-written, one-step-per-frame
         simulator of the scene's MJCF, without MuJoCo's contact model).
     trapezoidal : move each body over the frame with the mean of its old and new twist (exact for a

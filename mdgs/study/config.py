@@ -41,7 +41,7 @@ A study file has these tables (every key optional unless marked; defaults in the
     joints = true                       # also "constant twist + joints" (and "+ motors + joints" with motors;
                                         # default false): what an MDGS whose network outputs zero simulates
     rigid_tree = true                   # also "rigid tree + joints" (default false): the scene's MJCF as a rigid
-                                        # tree with floor contact with friction, one step per frame (mdgs.actuation)
+                                        # tree with contact, friction and limits, one step per frame (mdgs.actuation)
     rigid_tree_trapezoidal = true       # also "rigid tree + joints, trapezoidal" (default false): the same moving
                                         # each body with the mean of its old and new twist
 
