@@ -750,3 +750,23 @@ def test_ema_from_the_cli_says_what_it_evaluates_and_a_bad_decay_is_exit_2(data,
     res = runner.invoke(app, ["train", "--data", str(data), "--out", str(tmp_path / "bad"), "--ema", "1.5"])
     assert res.exit_code == 2 and "Traceback" not in res.output and "--ema 1.5 must be" in res.output, res.output
     assert not (tmp_path / "bad").exists()
+
+
+def test_per_object_scales_set_on_the_command_line_are_used_or_refused_with_one_sentence(data, tmp_path):
+    """``--set dv_scales=...`` is a comma-separated tuple, kept as given (the other per-object scales filled
+    from the data); a wrong count, a non-number or a non-positive value is exit 2 naming the setting."""
+    from mdgs.cli.train import parse_settings
+    from mdgs.data.split import load_split
+
+    assert parse_settings(MODELS["mdgs"].Config, ["dv_scales=1,0.5,2e-3"]) == {"dv_scales": (1.0, 0.5, 2e-3)}
+    tr = load_split(data / "train.h5")
+    n = SceneGraph.from_static(tr.static, has_contact=tr.has_contact).n_obj
+    given = tuple(0.1 * (k + 1) for k in range(n))
+    cfg = MODELS["mdgs"].resolve_config(MODELS["mdgs"].Config(dv_scales=given), tr)
+    assert cfg.dv_scales == given and len(cfg.dx_scales) == n and all(s > 0 for s in cfg.dx_scales)
+    for value, why in (("1,2", f"2 values given, but the scene has {n} objects"), ("1,x", "not a valid"),
+                       ("1,-2", "not a valid")):
+        res = runner.invoke(app, ["train", "--data", str(data), "--out", str(tmp_path / value), "--set",
+                                  f"dv_scales={value}", "--epochs", "1", "--max-steps", "1"])
+        assert res.exit_code == 2 and why in res.output and "dv_scales" in res.output, res.output
+        assert "Traceback" not in res.output and not (tmp_path / value / "checkpoint.pt").exists()

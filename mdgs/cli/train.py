@@ -109,8 +109,10 @@ def train_cmd(
 
 
 def parse_settings(config_cls, items: list[str]) -> dict:
-    """``["hidden=100", "structure=false"]`` -> ``{"hidden": 100, "structure": False}`` typed by the config's fields."""
+    """``["hidden=100", "structure=false", "dv_scales=1,0.04"]`` -> ``{"hidden": 100, "structure": False,
+    "dv_scales": (1.0, 0.04)}`` typed by the config's fields (a tuple of floats: comma-separated, each positive)."""
     import dataclasses
+    import math
 
     types = {f.name: f.type for f in dataclasses.fields(config_cls)}
     out = {}
@@ -131,6 +133,10 @@ def parse_settings(config_cls, items: list[str]) -> dict:
                 val = int(text)
             elif t.startswith("float"):
                 val = None if (text.lower() == "none" and "None" in t) else float(text)
+            elif t.startswith("tuple[float"):  # per-object values, comma-separated
+                val = tuple(float(v) for v in text.split(",")) if text.strip() else ()
+                if any(not math.isfinite(v) or v <= 0 for v in val):
+                    raise ValueError(text)
             else:
                 val = text
         except ValueError:

@@ -435,7 +435,14 @@ class MDGS(Simulator):
         # twist: g has no position output; a velocity error weighs like the position error it makes
         # over half a frame. Otherwise: the spread of g's position target.
         dx_auto = dt / 2 * float(dv.std()) if cfg.integrator == "twist" else float(dx.std())
-        if cfg.object_scales and cfg.integrator in ("rigid", "twist") and not cfg.dx_scales:
+        n_obj = SceneGraph.from_static(d.static, has_contact=d.has_contact).n_obj
+        for name in ("dx_scales", "dv_scales", "dvc_scales", "dw_scales"):
+            given = getattr(cfg, name)
+            if given and len(given) != n_obj:
+                raise ModelError(f"--set {name}: {len(given)} values given, but the scene has {n_obj} objects "
+                                 f"(one value per object, in the order of the scene's bodies with elements, the "
+                                 f"world's first when it has elements)")
+        if cfg.object_scales and cfg.integrator in ("rigid", "twist") and not (cfg.dx_scales and cfg.dv_scales):
             # per object: each object's own spread, floored
             scene = SceneGraph.from_static(d.static, has_contact=d.has_contact)
             om = np.asarray(scene.obj)[d.moving]
@@ -446,7 +453,7 @@ class MDGS(Simulator):
                 # twist: no position output; a velocity error weighs like the position error of half a frame
                 sx[o] = (dt / 2 * sv[o] if cfg.integrator == "twist"
                          else max(float(dx[:, om == o].std()), OBJECT_SCALE_FLOOR * gx))
-            kw["dx_scales"], kw["dv_scales"] = tuple(sx), tuple(sv)
+            kw["dx_scales"], kw["dv_scales"] = cfg.dx_scales or tuple(sx), cfg.dv_scales or tuple(sv)  # given ones kept
             if cfg.integrator == "twist":  # g's outputs per object: its own twist increments' spread
                 svc, sw = [1.0] * scene.n_obj, [1.0] * scene.n_obj
                 gvc, gw = max(float(dvc.std()), 1e-12), max(float(dw.std()), 1e-12)
