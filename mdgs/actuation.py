@@ -84,6 +84,11 @@ RIM_POINTS = 16
 #: Points of a rim held against a plane: its lowest and two more at +-120 degrees around the rim, so
 #: that a disc lying flat rests on a triangle and a tilted one rolls on its lowest point.
 RIM_SUPPORT = 3
+#: Batched CPU solves of systems with more unknowns than this go one system at a time: torch 2.13's
+#: batched LU on the CPU (oneMKL, more than one thread) returns invalid pivots from about 150 unknowns
+#: ("Pivots given to lu_solve must all be greater or equal to 1"), met on rotational-center's rollouts
+#: (205 unknowns) and reproduced with random well-conditioned matrices (tests/test_dynamics.py).
+BATCHED_SOLVE_MAX = 128
 #: World geoms a corner can touch (MuJoCo's type names); others are listed in ``DriveSet.unseen``.
 SURFACE_KINDS = ("plane", "box", "sphere", "capsule", "cylinder")
 
@@ -650,6 +655,14 @@ def contacts(R: torch.Tensor, t: torch.Tensor, tw, drives: DriveSet, dt: float) 
     return Contacts(P, frame, u, gap, held, slide, o, mu)
 
 
+def _solve(K: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``torch.linalg.solve(K, b)`` for ``K`` [B, n, n], ``b`` [B, n]; one system at a time on a multi-threaded
+    CPU beyond ``BATCHED_SOLVE_MAX`` unknowns (its comment)."""
+    if K.device.type == "cpu" and K.shape[0] > 1 and K.shape[-1] > BATCHED_SOLVE_MAX and torch.get_num_threads() > 1:
+        return torch.stack([torch.linalg.solve(K[i], b[i]) for i in range(K.shape[0])])
+    return torch.linalg.solve(K, b)
+
+
 def _soft_reference(pos: torch.Tensor, vel: torch.Tensor, lk: Link) -> tuple[torch.Tensor, torch.Tensor]:
     """MuJoCo's soft constraint for a limit at distance ``pos`` [B] (negative past it) closing at ``vel``
     [B]: the reference acceleration ``a_ref = -b vel - k d(pos) pos`` and the regularisation
@@ -911,7 +924,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             Jall, Call, ball, diag = Jm, Jm, b0, xd.new_zeros(B, C0)
         K = torch.cat([torch.cat([M, Call.transpose(-1, -2)], -1),
                        torch.cat([Jall, torch.diag_embed(diag)], -1)], 1)
-        sol = torch.linalg.solve(K, torch.cat([F, ball], -1))
+        sol = _solve(K, torch.cat([F, ball], -1))
         if not contact:
             break
         lz = sol[:, 6 * S + C0:].view(B, -1, 3)[..., 2]  # the push of each held candidate's surface is -lz
