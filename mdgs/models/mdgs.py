@@ -421,11 +421,11 @@ class MDGS(Simulator):
             kw["dt"] = float(d.frame_dt)
         dt = kw.get("dt", cfg.dt)
         f_scale = float(max(np.abs(mass[None, None, :, None] * dv / d.frame_dt).mean(), 1e-9))
+        scene = SceneGraph.from_static(d.static, has_contact=d.has_contact)
         if cfg.integrator == "euler":  # the learned position term is the residual x' - x - dt v'
             xs, vs = d.x[..., d.moving, :], d.v[..., d.moving, :]
             dx = (xs[:, 1:] - xs[:, :-1] - dt * vs[:, 1:]).reshape(-1, 3)
         elif cfg.integrator in ("rigid", "twist"):
-            scene = SceneGraph.from_static(d.static, has_contact=d.has_contact)
             dv, dx, dvc, dw = _rigid_increments(d, scene, dt, trapezoidal=cfg.integrator == "twist" or cfg.trapezoidal)
             if cfg.integrator == "twist":
                 if cfg.dvc_scale == 1.0:
@@ -435,7 +435,7 @@ class MDGS(Simulator):
         # twist: g has no position output; a velocity error weighs like the position error it makes
         # over half a frame. Otherwise: the spread of g's position target.
         dx_auto = dt / 2 * float(dv.std()) if cfg.integrator == "twist" else float(dx.std())
-        n_obj = SceneGraph.from_static(d.static, has_contact=d.has_contact).n_obj
+        n_obj = scene.n_obj
         for name in ("dx_scales", "dv_scales", "dvc_scales", "dw_scales"):
             given = getattr(cfg, name)
             if given and len(given) != n_obj:
@@ -444,7 +444,6 @@ class MDGS(Simulator):
                                  f"world's first when it has elements)")
         if cfg.object_scales and cfg.integrator in ("rigid", "twist") and not (cfg.dx_scales and cfg.dv_scales):
             # per object: each object's own spread, floored
-            scene = SceneGraph.from_static(d.static, has_contact=d.has_contact)
             om = np.asarray(scene.obj)[d.moving]
             gx, gv = max(float(dx.std()), 1e-12), max(float(dv.std()), 1e-12)
             sx, sv = [1.0] * scene.n_obj, [1.0] * scene.n_obj
