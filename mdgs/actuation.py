@@ -91,8 +91,15 @@ RIM_SUPPORT = 3
 BATCHED_SOLVE_MAX = 128
 #: World geoms a corner can touch (MuJoCo's type names); others are listed in ``DriveSet.unseen``.
 SURFACE_KINDS = ("plane", "box", "sphere", "capsule", "cylinder")
+#: Revision of the forward dynamics' results: bump it by one with every change that moves them (a new
+#: piece of physics, another contact rule). Study cells that run it (MDGS with ``actuation = "dynamics"``,
+#: the rigid-tree references) add it to their revision (:meth:`mdgs.study.runner.Cell.spec`), so a rerun
+#: study measures them again and its tables keep only the newest lines. 0: world surfaces, rim support
+#: points and soft joint limits (the lines of the dynamics before them were moved aside by hand, into
+#: each study folder's ``superseded-before-limits.jsonl``).
+FORWARD_DYNAMICS_REVISION = 0
 
-__all__ = ["Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
+__all__ = ["FORWARD_DYNAMICS_REVISION", "Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
            "motor_accelerations", "coupled_motor_accelerations", "contacts", "warn_unseen"]
 
 

@@ -543,6 +543,26 @@ def test_a_model_revision_makes_its_cells_stale_and_no_others(monkeypatch):
     assert any(c.model not in changed for c in before)
 
 
+def test_a_forward_dynamics_revision_makes_only_the_cells_that_step_it_stale(monkeypatch):
+    """Bumping ``mdgs.actuation.FORWARD_DYNAMICS_REVISION`` re-keys MDGS on the "dynamics" prior and the
+    rigid-tree references, and nothing else (plain MDGS, constant twist, MuJoCo keep their keys); at
+    revision 0 the keys are those of cells run before the revision existed (no ``revision`` for a
+    reference)."""
+    import mdgs.study.runner as study_runner
+    from mdgs.study.runner import Cell
+
+    study = load_study(TINY)
+    sc = study.scenes[0]
+    dyn = [Cell("reference", sc, "constant-twist", "rigid tree + joints", (("dynamics", True), ("joints", True))),
+           Cell("learned", sc, "mdgs", "mdgs + dynamics prior", (("actuation", "dynamics"),))]
+    other = [Cell("learned", sc, "mdgs", "mdgs + motor prior", (("actuation", "prior"),)), *cells_of(study)]
+    assert "revision" not in dyn[0].spec(study)
+    before = {c: c.key(study) for c in dyn + other}
+    monkeypatch.setattr(study_runner, "FORWARD_DYNAMICS_REVISION", study_runner.FORWARD_DYNAMICS_REVISION + 1)
+    assert [c for c in before if c.key(study) != before[c]] == dyn
+    assert dyn[0].spec(study)["revision"] == 1
+
+
 def test_sensitivity_lines_of_revision_0_give_way_to_those_measured_on_the_long_set(tmp_path):
     """Sensitivity cells of revision 0 were evaluated on the test set only; a folder holding them beside
     revision-1 lines (test and long sets) tables only the new ones, and the cells' keys changed, so a

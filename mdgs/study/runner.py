@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from mdgs.actuation import FORWARD_DYNAMICS_REVISION
 from mdgs.data.generate import GenerateConfig, generate
 from mdgs.data.io import output_problem
 from mdgs.data.split import SplitData, load_split
@@ -86,11 +87,19 @@ class Cell:
         if MODELS[self.model].learned:  # select absent at "last", select_frames and ema at 0: earlier keys hold
             d["budget"] = {k: v for k, v in asdict(study.budget).items()
                            if not (k == "select" and v == "last") and not (k in ("select_frames", "ema") and not v)}
-        if MODELS[self.model].revision:  # absent for revision 0: keys of cells run before revisions existed hold
-            d["revision"] = MODELS[self.model].revision
+        revision = MODELS[self.model].revision + (FORWARD_DYNAMICS_REVISION if self.runs_forward_dynamics else 0)
+        if revision:  # absent for revision 0: keys of cells run before revisions existed hold
+            d["revision"] = revision
         if self.kind == "sensitivity":  # revision 1: also on the long set (earlier lines are superseded)
             d["revision"] = SENSITIVITY_REVISION
         return d
+
+    @property
+    def runs_forward_dynamics(self) -> bool:
+        """Whether this cell steps :mod:`mdgs.actuation`'s forward dynamics (MDGS's "dynamics" prior, the
+        rigid-tree references): its revision then counts ``FORWARD_DYNAMICS_REVISION`` too."""
+        s = dict(self.settings)
+        return s.get("actuation") == "dynamics" or s.get("dynamics") is True
 
     def key(self, study: StudyConfig) -> str:
         return hashlib.sha256(json.dumps(self.spec(study), sort_keys=True).encode()).hexdigest()[:16]
