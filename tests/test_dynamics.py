@@ -162,10 +162,11 @@ def test_a_box_sliding_on_its_face_feels_coulomb_friction_or_is_stopped_when_fri
     np.testing.assert_allclose(alpha, 0, atol=1e-3)
 
 
-@pytest.mark.parametrize("trapezoidal", [False, True])
-def test_untrained_dynamics_mdgs_steps_as_the_rigid_tree_reference(tiny_cubli, trapezoidal):
+@pytest.mark.parametrize(("trapezoidal", "prior_input"), [(False, False), (True, False), (True, True)])
+def test_untrained_dynamics_mdgs_steps_as_the_rigid_tree_reference(tiny_cubli, trapezoidal, prior_input):
     """``actuation="dynamics"`` untrained is the "rigid tree + joints" reference, with the trapezoidal
-    step as with the semi-implicit one (1e-5 m over 10 steps: float32 against float64)."""
+    step as with the semi-implicit one, and with g reading the prior's increment (1e-5 m over 10 steps:
+    float32 against float64)."""
     from mdgs.evaluate import reference_label
 
     tr, te = load_split(tiny_cubli / "train.h5"), load_split(tiny_cubli / "test.h5")
@@ -173,7 +174,8 @@ def test_untrained_dynamics_mdgs_steps_as_the_rigid_tree_reference(tiny_cubli, t
     ct = MODELS["constant-twist"]
     ref = ct.from_data(te, ct.Config(dynamics=True, joints=True, trapezoidal=trapezoidal))
     assert reference_label(ref) == "rigid tree + joints" + (", trapezoidal" if trapezoidal else "")
-    net = MODELS["mdgs"].from_data(tr, MODELS["mdgs"].Config(actuation="dynamics", trapezoidal=trapezoidal))
+    net = MODELS["mdgs"].from_data(tr, MODELS["mdgs"].Config(actuation="dynamics", trapezoidal=trapezoidal,
+                                                              prior_input=prior_input))
     traj = {}
     for name, sim in (("ref", ref), ("mdgs", net)):
         sim.bind(te)
@@ -186,6 +188,29 @@ def test_untrained_dynamics_mdgs_steps_as_the_rigid_tree_reference(tiny_cubli, t
         traj[name] = torch.stack(xs, 1).double()
     moving = ~net.scene_on("cpu").static
     np.testing.assert_allclose(traj["mdgs"][:, :, moving].numpy(), traj["ref"][:, :, moving].numpy(), atol=1e-5)
+
+
+def test_g_reads_the_priors_increment_with_prior_input_and_needs_a_prior(tiny_cubli):
+    """With ``prior_input`` g's input gains the prior's node velocity increment over dt in units of
+    ``dv_scale``: g's first layer sees three more features, and they are the rigid tree's step (the
+    same increment the zero output adds). Without a prior the setting is refused."""
+    tr, te = load_split(tiny_cubli / "train.h5"), load_split(tiny_cubli / "test.h5")
+    cfg = MODELS["mdgs"].Config(actuation="dynamics", prior_input=True)
+    net, plain = (MODELS["mdgs"].from_data(tr, c) for c in (cfg, MODELS["mdgs"].Config(actuation="dynamics")))
+    assert net.state.lins[0].in_features == plain.state.lins[0].in_features + 3
+    net.bind(te)
+    b = batch_of(te, te.pairs(0)[:3], "cpu")
+    sc = net.scene_on("cpu")
+    seen = {}
+    net.state.register_forward_pre_hook(lambda mod, args: seen.update(g_in=args[1]))
+    with torch.no_grad():
+        net(sc, b.x, b.v, net.node_controls(b.ctrl), ctrl=b.ctrl)
+    (prior,) = net._priors(sc, b.x, b.v, b.ctrl)
+    sv = net.scales(sc, "cpu")[1]
+    np.testing.assert_allclose(seen["g_in"][..., -3:].numpy(), (prior / sv).numpy(), rtol=1e-6, atol=1e-7)
+    assert float(prior[:, ~sc.static].abs().max()) > 0  # the Cubli's tree moves under gravity and motors
+    with pytest.raises(ValueError, match="prior_input = true needs a prior"):
+        MODELS["mdgs"].Config(prior_input=True)
 
 
 def test_gravity_prior_with_the_dynamics_prior_is_refused():

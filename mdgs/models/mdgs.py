@@ -197,6 +197,7 @@ class MDGSConfig:
     self_weight: bool = False
     trapezoidal: bool = False
     loss: str = "mse"
+    prior_input: bool = False
     noise: str = "auto"
     noise_sigma_x: float = -1.0
     noise_sigma_v: float = -1.0
@@ -251,6 +252,11 @@ class MDGSConfig:
             raise ValueError(f"self_weight must be true or false, got {self.self_weight!r}")
         if not isinstance(self.trapezoidal, bool):
             raise ValueError(f"trapezoidal must be true or false, got {self.trapezoidal!r}")
+        if not isinstance(self.prior_input, bool):
+            raise ValueError(f"prior_input must be true or false, got {self.prior_input!r}")
+        if self.prior_input and self.actuation == "none" and not self.gravity_prior:
+            raise ValueError("prior_input = true needs a prior for g to read: set actuation (e.g. \"dynamics\") "
+                             "or gravity_prior = true")
         if self.gravity_prior and self.actuation == "dynamics":
             raise ValueError("actuation = \"dynamics\" already adds gravity; set gravity_prior = false with it")
 
@@ -391,7 +397,7 @@ class MDGS(Simulator):
         if c.contact:
             self.global_gather = GCN(d_z, c.hidden, c.global_dim, c.layers, sw)  # g^Z-
             self.force_contact = GCN(d_z + c.global_dim, c.hidden, 3, c.layers, sw)  # g^F-
-        self.state = GCN(d_z + 3, c.hidden, 6, c.layers, sw)  # g
+        self.state = GCN(d_z + 3 + (3 if c.prior_input else 0), c.hidden, 6, c.layers, sw)  # g
         if c.zero_init:  # start as the constant-twist reference: g outputs 0 until trained
             self.state.zero_output()
         # input normalisation of z (set from training data by fit / set_normalization)
@@ -622,8 +628,13 @@ class MDGS(Simulator):
             f = f + actuation_forces(x.detach(), ctrl, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj,
                                      scene.mass.to(dev))
         lam = c.lam if c.lam is not None else 1.0 / c.force_scale
-        out = self.state(obj_prop, torch.cat([z, lam * f], -1))  # Eqs. (8)-(9)
-        x_next, v_next, pose = self._integrate(scene, x, v, out, ctrl)
+        priors = self._priors(scene, x, v, ctrl)
+        g_in = [z, lam * f]
+        if c.prior_input:  # what the priors do this frame, in g's own velocity units
+            sv = self.scales(scene, dev)[1]
+            g_in.append((sum(priors) / sv).expand(B, N, 3).to(z.dtype) if priors else torch.zeros_like(f))
+        out = self.state(obj_prop, torch.cat(g_in, -1))  # Eqs. (8)-(9)
+        x_next, v_next, pose = self._integrate(scene, x, v, out, priors)
         moving = scene.moving(dev)
         if simulate and c.joints and self._joints:  # on the structure's placement (pose), not a second fit
             x_next, v_next = project_joints(x_next, v_next, self._joints, scene.ref_shape.to(dev), scene.obj.to(dev),
@@ -692,15 +703,13 @@ class MDGS(Simulator):
             r = pair_mse(x0, v0, x_true, v_true, moving, *scales)
         return (pair_mse(p.x, p.v, x_true, v_true, moving, *scales) / (r + r.median().clamp_min(1e-12))).mean()
 
-    def _integrate(self, scene: SceneGraph, x, v, out, ctrl) -> tuple:
-        """``x', v'`` [B, N, 3] from g's output ``out`` [B, N, 6]: plus the motors' joint response over ``dt``
-        (``actuation`` prior, coupled or step), through the integrator, then the structural constraint module; and
-        the objects' placement ``(R, t)`` that module fitted (None without it)."""
+    def _priors(self, scene: SceneGraph, x, v, ctrl) -> list:
+        """The priors' node velocity increments over ``dt``, each [B, N, 3] or [N, 3]: the motors' joint
+        response or the whole tree's forward dynamics (``actuation``; none without ``ctrl``) and gravity
+        (``gravity_prior``)."""
         c = self.config
         dev = x.device
-        sx, sv = self.scales(scene, dev)
-        svc, sw = self.twist_scales(scene, dev)
-        priors = []  # the priors' node velocity increments over dt, [B, N, 3] or [N, 3]
+        priors = []
         if c.actuation == "dynamics" and ctrl is not None:  # the whole tree's forward dynamics over dt
             seg, mass = scene.obj.to(dev), scene.mass.to(dev)
             priors.append(c.dt * coupled_motor_accelerations(x.detach(), ctrl, self._drives, scene.ref_shape.to(dev),
@@ -715,8 +724,18 @@ class MDGS(Simulator):
             key = ("gravity", str(dev))
             if key not in self._scenes:
                 self._scenes[key] = self._gravity.to(dev)
-            dv_g = (c.dt * self._scenes[key]) * scene.moving(dev).unsqueeze(-1).to(out.dtype)  # [N, 3]
+            dv_g = (c.dt * self._scenes[key]) * scene.moving(dev).unsqueeze(-1).to(x.dtype)  # [N, 3]
             priors.append(dv_g)
+        return priors
+
+    def _integrate(self, scene: SceneGraph, x, v, out, priors: list) -> tuple:
+        """``x', v'`` [B, N, 3] from g's output ``out`` [B, N, 6]: plus the ``priors``' velocity increments
+        (:meth:`_priors`), through the integrator, then the structural constraint module; and the objects'
+        placement ``(R, t)`` that module fitted (None without it)."""
+        c = self.config
+        dev = x.device
+        sx, sv = self.scales(scene, dev)
+        svc, sw = self.twist_scales(scene, dev)
         if priors and c.integrator == "twist":  # g reads twist increments: add the priors' rigid part
             seg, mass = scene.obj.to(dev), scene.mass.to(dev)
             tw = twist(x.detach(), v.detach(), seg, scene.n_obj, mass)
@@ -735,7 +754,8 @@ class MDGS(Simulator):
 
     def _zero_step(self, scene: SceneGraph, x, v, ctrl) -> tuple:
         """``x', v'`` of the state network's output zero (constant twist plus the priors; no joint projection)."""
-        return self._integrate(scene, x, v, torch.zeros(*x.shape[:-1], 6, dtype=x.dtype, device=x.device), ctrl)[:2]
+        return self._integrate(scene, x, v, torch.zeros(*x.shape[:-1], 6, dtype=x.dtype, device=x.device),
+                               self._priors(scene, x, v, ctrl))[:2]
 
     def loss_weights(self) -> dict[str, float]:
         return {"mse": 1.0, "cst": self.config.cst_weight}  # Section 3.4: summed
