@@ -213,6 +213,31 @@ def test_g_reads_the_priors_increment_with_prior_input_and_needs_a_prior(tiny_cu
         MODELS["mdgs"].Config(prior_input=True)
 
 
+def test_fade_leaves_a_training_state_to_g_and_a_state_far_outside_the_data_to_the_prior(tiny_cubli):
+    """With ``fade`` g's correction is kept where every node feature lies inside the training split's
+    range and vanishes where the state is far outside it (the Cubli lifted 10 m into the air, 100s of
+    standard deviations of height): there the step is the rigid tree's, as with g's output zeroed."""
+    import copy
+
+    tr = load_split(tiny_cubli / "train.h5")
+    net = MODELS["mdgs"].from_data(tr, MODELS["mdgs"].Config(actuation="dynamics", fade=1.0))
+    assert bool((net.z_lo <= net.z_hi).all()) and bool(torch.isfinite(net.z_lo).all())
+    torch.nn.init.normal_(net.state.lins[-1].weight, std=0.1)  # g outputs something
+    start = copy.deepcopy(net)
+    start.state.zero_output()
+    b = batch_of(tr, tr.pairs(0)[:3], "cpu")
+    moving = ~net.scene_on("cpu").static
+    lift = torch.zeros_like(b.x)
+    lift[:, moving, 2] = 10.0
+    with torch.no_grad():
+        inside = [m.step(State(b.x, b.v), b.ctrl).v for m in (net, start)]
+        outside = [m.step(State(b.x + lift, b.v), b.ctrl).v for m in (net, start)]
+    assert float((inside[0] - inside[1]).abs().max()) > 1e-3
+    np.testing.assert_allclose(outside[0].numpy(), outside[1].numpy(), atol=1e-6)
+    with pytest.raises(ValueError, match="fade must be"):
+        MODELS["mdgs"].Config(fade=-1.0)
+
+
 def test_gravity_prior_with_the_dynamics_prior_is_refused():
     with pytest.raises(ValueError, match="already adds gravity"):
         MODELS["mdgs"].Config(actuation="dynamics", gravity_prior=True)

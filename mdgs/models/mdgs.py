@@ -198,6 +198,7 @@ class MDGSConfig:
     trapezoidal: bool = False
     loss: str = "mse"
     prior_input: bool = False
+    fade: float = 0.0
     noise: str = "auto"
     noise_sigma_x: float = -1.0
     noise_sigma_v: float = -1.0
@@ -252,6 +253,9 @@ class MDGSConfig:
             raise ValueError(f"self_weight must be true or false, got {self.self_weight!r}")
         if not isinstance(self.trapezoidal, bool):
             raise ValueError(f"trapezoidal must be true or false, got {self.trapezoidal!r}")
+        if isinstance(self.fade, bool) or not (isinstance(self.fade, int | float) and math.isfinite(self.fade)
+                                               and self.fade >= 0):
+            raise ValueError(f"fade must be a number of at least 0 (standard deviations; 0: off), got {self.fade!r}")
         if not isinstance(self.prior_input, bool):
             raise ValueError(f"prior_input must be true or false, got {self.prior_input!r}")
         if self.prior_input and self.actuation == "none" and not self.gravity_prior:
@@ -403,6 +407,9 @@ class MDGS(Simulator):
         # input normalisation of z (set from training data by fit / set_normalization)
         self.register_buffer("z_mean", torch.zeros(d_z))
         self.register_buffer("z_std", torch.ones(d_z))
+        if c.fade:  # the range of the normalised features over the training split (set by fit)
+            self.register_buffer("z_lo", torch.full((d_z,), -math.inf))
+            self.register_buffer("z_hi", torch.full((d_z,), math.inf))
         self._scene: SceneGraph | None = None
         self._scenes: dict = {}
         self._sign: torch.Tensor | None = None
@@ -489,6 +496,17 @@ class MDGS(Simulator):
         scene = SceneGraph.from_static(d.static, has_contact=d.has_contact)
         z = self.node_features(scene, x, v, c).reshape(-1, self.d_z)
         self.set_normalization(z.mean(0), z.std(0))
+        if self.config.fade:  # every training frame's range, in chunks
+            lo, hi = self.z_lo.clone().fill_(math.inf), self.z_hi.clone().fill_(-math.inf)
+            xs, vs = d.x.reshape(n, *d.x.shape[2:]), d.v.reshape(n, *d.v.shape[2:])
+            cs = d.control.reshape(n, *d.control.shape[2:])
+            for i in range(0, n, 1024):
+                zi = (self.node_features(scene, torch.tensor(xs[i:i + 1024]), torch.tensor(vs[i:i + 1024]),
+                                         torch.tensor(cs[i:i + 1024])) - self.z_mean) / self.z_std
+                lo = torch.minimum(lo, zi.amin(dim=(0, 1)))
+                hi = torch.maximum(hi, zi.amax(dim=(0, 1)))
+            self.z_lo.copy_(lo)
+            self.z_hi.copy_(hi)
 
     def bind(self, split: SplitData) -> None:
         """Use the static graph and control map of ``split`` (same node and actuator counts)."""
@@ -634,6 +652,9 @@ class MDGS(Simulator):
             sv = self.scales(scene, dev)[1]
             g_in.append((sum(priors) / sv).expand(B, N, 3).to(z.dtype) if priors else torch.zeros_like(f))
         out = self.state(obj_prop, torch.cat(g_in, -1))  # Eqs. (8)-(9)
+        if c.fade:  # fade g's correction where the state leaves the training data's range
+            e = torch.maximum(z - self.z_hi, self.z_lo - z).clamp_min(0.0).amax(dim=(-2, -1))  # [B]
+            out = out * torch.exp(-(e / c.fade) ** 2).view(B, 1, 1)
         x_next, v_next, pose = self._integrate(scene, x, v, out, priors)
         moving = scene.moving(dev)
         if simulate and c.joints and self._joints:  # on the structure's placement (pose), not a second fit
