@@ -1,7 +1,7 @@
 """Where a single-trajectory rollout step of every model spends its time: arithmetic or overhead.
 
     python benchmarks/profile_step.py [--scene cubli-triple] [--models mdgs gns ...] [--frames 10] [--repeats 5]
-                                      [--compile [inductor|aot]] [--widths 100 50] [--device cuda]
+                                      [--compile [inductor|aot|cudagraphs]] [--widths 100 50] [--device cuda]
 
 One run, this machine, CPU, one torch thread, batch 1 (one trajectory), untrained weights (the cost
 of a step does not depend on training), on a ``tiny`` dataset of the scene written to a temporary
@@ -29,8 +29,12 @@ views and shape changes (view, reshape, expand, unsqueeze, transpose, select, sl
 contiguous, clone), indexing and data movement (index, index_put, index_select, gather, scatter,
 cat, stack, nonzero, unique, masked_select), error checks (``_linalg_check_errors``), ``item``.
 
-``--device cuda`` profiles each torch model's step on the GPU instead: kernels launched per step, the
-GPU time of those kernels and its share of the wall time (a small share: the step is launch-bound).
+``--device cuda`` profiles each torch model's step on the GPU instead: kernels run per step, the
+GPU time of those kernels and its share of the wall time (a small share: the step is launch-bound),
+the host's CUDA calls per step that launch one kernel, replay a CUDA graph or wait for the device
+(``RUNTIME``) and the host entries with the most self time. With ``--compile`` there (``cudagraphs``:
+inductor's kernels replayed as CUDA graphs), dynamo's graph breaks and inductor's reasons for not
+replaying a graph are logged as they happen and the breaks counted at the end.
 
 ``--compile`` profiles the ``torch.compile``d step (:func:`mdgs.models.compile_step`, compiled with
 inductor's per-kernel profiling on); ``--compile aot`` the step compiled ahead of time (AOTInductor, the
@@ -109,9 +113,11 @@ def _quiet_stderr():
         os.close(saved)
 
 
-def _cuda_profiled_rollout(step, state, ctrl) -> tuple[float, float, int]:
+def _cuda_profiled_rollout(step, state, ctrl) -> tuple[float, float, int, dict[str, int], list]:
     """Wall seconds of ``len(ctrl)`` steps on a CUDA device under the profiler (synchronised at the
-    end), the seconds its kernels kept the GPU busy and how many kernels it launched."""
+    end), the seconds its kernels kept the GPU busy, how many kernels ran, the host-side CUDA runtime
+    calls counted by kind (``RUNTIME``: kernel launches, graph launches, synchronising copies and waits)
+    and the 5 host entries with the most self CPU time (``(name, seconds)``)."""
     with _quiet_stderr(), profile(activities=[ProfilerActivity.CPU, ProfilerActivity.CUDA]) as prof:
         torch.cuda.synchronize()
         t0 = time.perf_counter()
@@ -121,11 +127,27 @@ def _cuda_profiled_rollout(step, state, ctrl) -> tuple[float, float, int]:
         torch.cuda.synchronize()
         wall = time.perf_counter() - t0
     busy, kernels = 0.0, 0
+    calls: dict[str, int] = defaultdict(int)
+    host: dict[str, float] = defaultdict(float)
     for e in prof.events():
         if e.device_type == torch.autograd.DeviceType.CUDA:  # a kernel or copy that ran on the GPU
             busy += e.device_time * 1e-6
             kernels += 1
-    return wall, busy, kernels
+            continue
+        for kind, names in RUNTIME.items():
+            if e.name in names:
+                calls[kind] += 1
+        host[e.name] += e.self_cpu_time_total * 1e-6
+    top = sorted(host.items(), key=lambda kv: -kv[1])[:5]
+    return wall, busy, kernels, dict(calls), top
+
+
+#: Host-side CUDA runtime/driver calls counted per step on a GPU: ``launch`` one kernel each, ``graph`` one
+#: replay of a captured CUDA graph (all its kernels), ``sync`` a call that waits for the device (a
+#: device-to-host copy or an explicit synchronisation; the rollout's final one is counted too).
+RUNTIME = {"launch": {"cudaLaunchKernel", "cuLaunchKernel", "cuLaunchKernelEx", "cudaLaunchKernelExC"},
+           "graph": {"cudaGraphLaunch"},
+           "sync": {"cudaMemcpy", "cudaStreamSynchronize", "cudaDeviceSynchronize", "cudaEventSynchronize"}}
 
 
 @torch.no_grad()
@@ -138,18 +160,22 @@ def profile_model_cuda(model, te, frames: int, repeats: int) -> dict:
     frames = max(1, min(frames, te.x.shape[1] - h - 1))
     ctrl = [torch.from_numpy(te.ctrl[[0], h + t]).to(model.device) for t in range(frames)]
     step = getattr(model, "cost_step", model.step)
-    walls, busy, kernels = [], [], []
+    walls, busy, kernels, calls, tops = [], [], [], [], []
     for _ in range(repeats):
         state = model.initial_state(te, np.array([0]), h)
         for c in ctrl[:2]:
             step(state, c)
-        w, b, k = _cuda_profiled_rollout(step, state, ctrl)
+        w, b, k, n, top = _cuda_profiled_rollout(step, state, ctrl)
         walls.append(w)
         busy.append(b)
         kernels.append(k)
+        calls.append(n)
+        tops.append(top)
     return {"ms": ms, "prof_ms": 1e3 * statistics.median(walls) / frames,
             "kernels": statistics.median(kernels) / frames, "busy_ms": 1e3 * statistics.median(busy) / frames,
-            "busy": statistics.median(b / w for b, w in zip(busy, walls, strict=True))}
+            "busy": statistics.median(b / w for b, w in zip(busy, walls, strict=True)),
+            **{kind: statistics.median(n.get(kind, 0) for n in calls) / frames for kind in RUNTIME},
+            "top": [(name, 1e3 * t / frames) for name, t in tops[-1]]}
 
 
 def _profiled_rollout(step, state, ctrl) -> tuple[float, dict[str, float]]:
@@ -199,8 +225,9 @@ def main() -> None:
     ap.add_argument("--models", nargs="*", default=None, help="registry names (default: all)")
     ap.add_argument("--frames", type=int, default=10, help="steps per profiled rollout")
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--compile", nargs="?", const="inductor", default=None, choices=("inductor", "aot"),
-                    help="profile the compiled step: inductor (torch.compile, the default) or aot (module docstring)")
+    ap.add_argument("--compile", nargs="?", const="inductor", default=None, choices=("inductor", "aot", "cudagraphs"),
+                    help="profile the compiled step: inductor (torch.compile, the default), aot or cudagraphs "
+                         "(CUDA only; module docstring)")
     ap.add_argument("--widths", nargs="*", type=int, default=[], help="MDGS also at these hidden widths")
     ap.add_argument("--device", default="cpu", help="cpu, or cuda: kernels per step and GPU-busy share instead "
                                                   "of the op table (MuJoCo is left out there)")
@@ -254,7 +281,10 @@ def _main_cuda(args) -> None:
     names = [n for n in (args.models or list(MODELS)) if n != "mujoco"]
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, batch 1, {torch.cuda.get_device_name(dev)}; per step, medians "
           f"of {args.repeats} rollouts of {args.frames} steps" + (f"; compiled steps ({args.compile})" if args.compile else ""))
-    print(f"{'model':22s}{'ms/step':>9s}{'prof ms':>9s}{'kernels':>9s}{'GPU ms':>9s}{'GPU busy %':>12s}")
+    if args.compile:  # dynamo's graph breaks and inductor's reasons for not replaying a CUDA graph, as they happen
+        torch._logging.set_logs(graph_breaks=True, perf_hints=True)
+    print(f"{'model':22s}{'ms/step':>9s}{'prof ms':>9s}{'kernels':>9s}{'GPU ms':>9s}{'GPU busy %':>12s}"
+          f"{'launches':>10s}{'graphs':>8s}{'syncs':>7s}")
     for label, model in registry_models(names, tr, tuple(args.widths), dev):
         if isinstance(model, str):
             print(f"{label:22s} refused: {model}")
@@ -268,9 +298,18 @@ def _main_cuda(args) -> None:
             print(f"{label:22s} failed: {type(e).__name__}: {str(e).splitlines()[0][:100] if str(e) else ''}")
             continue
         print(f"{label:22s}{r['ms']:>9.3f}{r['prof_ms']:>9.3f}{r['kernels']:>9.0f}{r['busy_ms']:>9.3f}"
-              f"{100 * r['busy']:>12.0f}", flush=True)
-    print("ms/step: unprofiled; prof ms: wall with the profiler on; kernels: GPU kernels and copies launched per "
-          "step; GPU ms: their own time per step; GPU busy %: GPU ms over prof ms (the rest is launching and Python)")
+              f"{100 * r['busy']:>12.0f}{r['launch']:>10.1f}{r['graph']:>8.1f}{r['sync']:>7.1f}", flush=True)
+        print("    top host entries (self ms/step): " + ", ".join(f"{k} {t:.3f}" for k, t in r["top"]), flush=True)
+    if args.compile:
+        from torch._dynamo.utils import counters
+
+        print(f"dynamo: {sum(counters['graph_break'].values())} graph breaks, "
+              f"{counters['stats'].get('unique_graphs', 0)} graphs compiled; "
+              + "; ".join(f"{k.splitlines()[0][:90]} x{n}" for k, n in counters["graph_break"].items()))
+    print("ms/step: unprofiled; prof ms: wall with the profiler on; kernels: GPU kernels and copies run per "
+          "step; GPU ms: their own time per step; GPU busy %: GPU ms over prof ms (the rest is launching and "
+          "Python); launches, graphs, syncs: host calls per step that launch one kernel, replay a CUDA graph, "
+          "wait for the device (RUNTIME)")
 
 
 if __name__ == "__main__":

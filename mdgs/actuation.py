@@ -230,7 +230,19 @@ class DriveSet:
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __bool__(self) -> bool:
-        return bool(self.drives)
+        return len(self.drives) > 0  # not bool(list): dynamo (torch 2.11) breaks the graph on it
+
+    def constants(self) -> dict:
+        """Static quantities of the scene as Python numbers, built once: a compiled step reads them as
+        constants, where the same computed from the arrays inside the step (numpy there is traced as
+        tensors) would give data-dependent shapes or a read back to the host. ``fixed``, ``off_rim``: index
+        lists of the objects that do not move and of the corners that are not rim points; ``g``: the norm
+        of gravity."""
+        if "constants" not in self._cache:
+            self._cache["constants"] = {"fixed": [int(i) for i in np.flatnonzero(self.fixed)],
+                                        "off_rim": [int(i) for i in np.flatnonzero(~np.asarray(self.on_rim, bool))],
+                                        "g": float(np.linalg.norm(self.gravity))}
+        return self._cache["constants"]
 
     def tensors(self, dev) -> dict:
         """Stacked float64 / int64 tensors of the drives and bodies on ``dev`` (built once per device)."""
@@ -613,7 +625,6 @@ def contacts(R: torch.Tensor, t: torch.Tensor, tw, drives: DriveSet, dt: float) 
     B = R.shape[0]
     obj = torch.as_tensor(drives.corner_obj, device=dev)
     P_all = (R[:, obj] @ torch.as_tensor(drives.corners, dtype=f64, device=dev).unsqueeze(-1)).squeeze(-1) + t[:, obj]
-    on_rim = torch.as_tensor(drives.on_rim, device=dev)
     corner_mu = torch.as_tensor(drives.corner_friction, dtype=f64, device=dev)
     Q = len(drives.rim_obj)
     if Q:  # every rim's centre and axis in the world
@@ -627,7 +638,7 @@ def contacts(R: torch.Tensor, t: torch.Tensor, tw, drives: DriveSet, dt: float) 
     for sf in drives.surfaces:
         rot = torch.as_tensor(sf.rot, dtype=f64, device=dev)
         pos = torch.as_tensor(sf.pos, dtype=f64, device=dev)
-        keep = ~on_rim if sf.kind == "plane" else torch.ones_like(on_rim)
+        keep = drives.constants()["off_rim"] if sf.kind == "plane" else slice(None)  # not a mask: static shapes
         P, o, mu = P_all[:, keep], obj[keep], corner_mu[keep]
         if sf.kind == "plane" and Q:
             n = rot[:, 2]
@@ -658,13 +669,17 @@ def contacts(R: torch.Tensor, t: torch.Tensor, tw, drives: DriveSet, dt: float) 
     frame = torch.stack([t1, torch.linalg.cross(n, t1, dim=-1), n], -2)
     un = (u * n).sum(-1)
     held = (gap < CONTACT_GAP) | (gap + dt * un.clamp_max(0.0) < CONTACT_GAP)
-    slide = (u - un.unsqueeze(-1) * n).norm(dim=-1) > mu * float(np.linalg.norm(drives.gravity)) * dt
+    slide = (u - un.unsqueeze(-1) * n).norm(dim=-1) > mu * drives.constants()["g"] * dt
     return Contacts(P, frame, u, gap, held, slide, o, mu)
 
 
 def _solve(K: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """``torch.linalg.solve(K, b)`` for ``K`` [B, n, n], ``b`` [B, n]; one system at a time on a multi-threaded
-    CPU beyond ``BATCHED_SOLVE_MAX`` unknowns (its comment)."""
+    CPU beyond ``BATCHED_SOLVE_MAX`` unknowns (its comment). Compiled, ``torch.linalg.solve_ex`` without
+    its error check, which reads a flag on the host (a CUDA graph cannot capture that): a singular system
+    then gives non-finite accelerations, which a rollout counts as diverged, instead of raising."""
+    if torch.compiler.is_compiling():
+        return torch.linalg.solve_ex(K, b)[0]
     if K.device.type == "cpu" and K.shape[0] > 1 and K.shape[-1] > BATCHED_SOLVE_MAX and torch.get_num_threads() > 1:
         return torch.stack([torch.linalg.solve(K[i], b[i]) for i in range(K.shape[0])])
     return torch.linalg.solve(K, b)
@@ -806,7 +821,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
 
     J, rhs = [], []  # constraint rows [B, k, 6S] and their right-hand sides [B, k]
     zero3 = xd.new_zeros(B, 3)
-    for s in torch.nonzero(fixed).flatten().tolist():  # the world's elements stay put
+    for s in drives.constants()["fixed"]:  # the world's elements stay put
         J.append(torch.eye(6 * S, dtype=f64, device=dev)[6 * s: 6 * s + 6].expand(B, 6, 6 * S))
         rhs.append(xd.new_zeros(B, 6))
     world = eye3.expand(B, 3, 3)
@@ -905,16 +920,20 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             cand_R.append(cR)
             cand_on.append(torch.tensor([False, False, True], device=dev).expand(B, 1, 3))
             cand_held.append(((h < lk.margin) | (h + dt * hd.clamp_max(0.0) < lk.margin)).unsqueeze(1))
-    contact = bool(cand_J)
+    contact = len(cand_J) > 0
     if contact:
         Jc, Cc, rc_ = torch.cat(cand_J, 1), torch.cat(cand_C, 1), torch.cat(cand_r, 1)
         rows_on, active, Rc = torch.cat(cand_on, 1), torch.cat(cand_held, 1), torch.cat(cand_R, 1)
     Jm = torch.cat(J, 1) if J else xd.new_zeros(B, 0, 6 * S)
     b0 = torch.cat(rhs, -1) if rhs else xd.new_zeros(B, 0)
+    # compiled (torch.compile, a CUDA graph), every pass solves with a slot for every candidate and all
+    # CONTACT_PASSES passes run: the same multipliers (an empty slot is a row lambda = 0), with shapes that do
+    # not depend on the state; eager steps keep the smaller systems and stop early
+    static = torch.compiler.is_compiling()
     for _ in range(CONTACT_PASSES if contact else 1):
         if contact:  # the held corners first, as many slots as the batch's most held corners
             order = torch.argsort((~active).to(torch.int8), dim=-1, stable=True)
-            n_on = max(int(active.sum(-1).max()), 1)
+            n_on = active.shape[-1] if static else max(int(active.sum(-1).max()), 1)
             sel = order[:, :n_on]  # [B, n_on]
             on = (torch.gather(active, 1, sel).unsqueeze(-1)
                   & torch.gather(rows_on, 1, sel.view(B, n_on, 1).expand(-1, -1, 3))).to(f64).view(B, 3 * n_on)
@@ -936,7 +955,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             break
         lz = sol[:, 6 * S + C0:].view(B, -1, 3)[..., 2]  # the push of each held candidate's surface is -lz
         pulls = torch.zeros_like(active).scatter(1, sel, (lz > 0) & (on.view(B, -1, 3)[..., 2] > 0))
-        if not bool(pulls.any()):
+        if not static and not bool(pulls.any()):
             break
         active = active & ~pulls
     z = sol[:, :6 * S].view(B, S, 6)

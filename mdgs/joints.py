@@ -115,7 +115,7 @@ class JointSet:
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __bool__(self) -> bool:
-        return bool(self.joints)
+        return len(self.joints) > 0  # not bool(list): dynamo (torch 2.11) breaks the graph on it
 
     def levels(self) -> list[list[int]]:
         """Indices into ``joints`` by depth in the kinematic tree: level 0 hangs from the world or from

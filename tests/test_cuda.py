@@ -165,3 +165,61 @@ def test_constant_twist_replays_as_a_cuda_graph_as_the_eager_step(splits):
     compile_step(ref, "cudagraphs")
     comp = rollout(ref, te)
     np.testing.assert_allclose(comp.x, eager.x, rtol=0, atol=1e-5)
+
+
+#: MDGS on the rigid tree's forward dynamics (``actuation = "dynamics"``), as studies/mdgs-dynamics.toml
+#: trains it, bare and with the settings that read the prior and fade g outside the training range.
+DYNAMICS_CONFIGS = {
+    "dynamics": dict(actuation="dynamics", noise="none", trapezoidal=True, loss="relative"),
+    "dynamics-prior-input-fade": dict(actuation="dynamics", noise="none", trapezoidal=True, loss="relative",
+                                      prior_input=True, fade=1.0),
+}
+
+
+def _dynamics_pair(settings: dict, tr):
+    """MDGS with the dynamics prior built on the CPU, g's last layer perturbed so that it outputs something
+    (the untrained model is the rigid tree alone), and an exact copy on the GPU."""
+    torch.manual_seed(0)
+    cls = MODELS["mdgs"]
+    cpu = cls.from_data(tr, cls.Config(**settings))
+    torch.nn.init.normal_(cpu.state.lins[-1].weight, std=0.05)
+    return cpu.eval(), copy.deepcopy(cpu).to("cuda").eval()
+
+
+@pytest.mark.parametrize("which", list(DYNAMICS_CONFIGS))
+def test_mdgs_on_the_dynamics_prior_agrees_between_cpu_and_cuda(which, splits):
+    """One step (the forward dynamics with floor contact runs on the GPU), the relative loss's terms and a
+    10-frame rollout agree between the devices, to the tolerances of the module docstring."""
+    tr, te = splits
+    cpu, gpu = _dynamics_pair(DYNAMICS_CONFIGS[which], tr)
+    outs, terms = [], []
+    for m in (cpu, gpu):
+        m.bind(te)
+        traj = np.arange(te.x.shape[0])
+        st = m.initial_state(te, traj, m.history)
+        ctrl = torch.from_numpy(te.ctrl[traj, m.history]).to(m.device)
+        with torch.no_grad():
+            nxt = m.step(st, ctrl)
+            m.bind(tr)
+            terms.append(m.losses(batch_of(tr, tr.pairs(m.history)[:16], m.device, m.history)))
+        outs.append((nxt.x - st.x, nxt.v))
+    _close(outs[0][0], outs[1][0], 1e-3, 1e-9)
+    _close(outs[0][1], outs[1][1], 1e-3, 1e-9)
+    for k in terms[0]:
+        _close(terms[0][k], terms[1][k], 1e-3, 1e-12)
+    h = cpu.history
+    short = dataclasses.replace(te, **{k: getattr(te, k)[:, :h + 11] for k in ("x", "v", "ctrl", "qpos", "qvel", "act")
+                                      if getattr(te, k) is not None})
+    a, b = rollout(cpu, short), rollout(gpu, short)
+    np.testing.assert_allclose(b.pos_mse[:, h + 1:], a.pos_mse[:, h + 1:], rtol=1e-2, atol=1e-12)
+
+
+def test_mdgs_on_the_dynamics_prior_replays_as_a_cuda_graph_as_the_eager_step(splits):
+    tr, te = splits
+    _, gpu = _dynamics_pair(DYNAMICS_CONFIGS["dynamics"], tr)
+    eager = rollout(gpu, te)
+    compile_step(gpu, "cudagraphs")
+    comp = rollout(gpu, te)
+    ok = np.isfinite(eager.pos_mse) & np.isfinite(comp.pos_mse)
+    assert ok[:, :20].all()
+    np.testing.assert_allclose(comp.pos_mse[:, :20], eager.pos_mse[:, :20], rtol=1e-3, atol=1e-12)

@@ -162,6 +162,44 @@ def test_a_box_sliding_on_its_face_feels_coulomb_friction_or_is_stopped_when_fri
     np.testing.assert_allclose(alpha, 0, atol=1e-3)
 
 
+def test_the_compiled_forward_dynamics_solves_with_static_shapes_and_gives_the_eager_accelerations(tiny_cubli):
+    """Under ``torch.compile`` the forward dynamics gives every contact candidate a slot and runs all
+    ``CONTACT_PASSES`` passes (shapes that do not follow the state, so the step is one graph and a CUDA
+    graph can replay it); eagerly it solves only the held candidates and stops when none pulls. Both must
+    give the same accelerations: compared here (dynamo's own ``eager`` backend, so only the tracing
+    differs, fullgraph: no graph break allowed) on boxes resting, tipping up (a pass lets the rising
+    corners go), striking the floor and sliding, and over 20 frames of the Cubli's rigid tree. Tolerance:
+    the solves are float64 and differ in size, 1e-9 of the acceleration's scale."""
+    m = mujoco.MjModel.from_xml_string(BOX)
+    nb, ref = _box_nodes(m)
+    ds = drives_of(m, nb, ref)
+    seg, mass = torch.zeros(8, dtype=torch.long), torch.full((8,), 0.25, dtype=torch.float64)
+    compiled = torch.compile(coupled_motor_accelerations, backend="eager", fullgraph=True)
+    cases = [(np.eye(3), [0, 0, H], [0, 0, 0], [0, 0, 0]),  # resting on a face
+             (np.eye(3), [0, 0, H], [3.0, 0, 0], np.cross([3.0, 0, 0], [0, H, H])),  # tipping about an edge
+             (np.eye(3), [0, 0, H + 0.005], [0, 0, 0], [0, 0, -2.0]),  # about to strike
+             (np.eye(3), [0, 0, H], [0, 0, 0], [1.0, 0, 0]),  # sliding
+             (_rot_x(0.4), [0, 0, 0.08], [0.5, 1.0, 0], [0, 0.2, -0.5])]  # on an edge, turning
+    for R, t, w, vc in cases:
+        x = torch.tensor(ref @ R.T + np.asarray(t, float))[None]
+        v = torch.tensor(np.asarray(vc, float) + np.cross(np.asarray(w, float), ref @ R.T))[None]
+        args = (x, torch.zeros(1, 0), ds, torch.tensor(ref), seg, 1)
+        eager = coupled_motor_accelerations(*args, v=v, mass=mass, dt=0.01)
+        got = compiled(*args, v=v, mass=mass, dt=0.01)
+        np.testing.assert_allclose(got.numpy(), eager.numpy(), rtol=0, atol=1e-9 * max(1.0, float(eager.abs().max())))
+    te = load_split(tiny_cubli / "test.h5")
+    tree = MODELS["constant-twist"].from_data(te, MODELS["constant-twist"].Config(dynamics=True)).eval()
+    tree.bind(te)
+    traj = np.arange(te.x.shape[0])
+    a = b = tree.initial_state(te, traj, 0)
+    step = torch.compile(type(tree).step.__get__(tree), backend="eager", fullgraph=True)
+    for f in range(20):
+        ctrl = torch.from_numpy(te.ctrl[traj, f])
+        a, b = tree.step(a, ctrl), step(b, ctrl)
+    assert float(a.v.abs().max()) > 0.1  # the Cubli moved
+    np.testing.assert_allclose(b.x.numpy(), a.x.numpy(), rtol=0, atol=1e-5)  # float32 states, 20 frames
+
+
 @pytest.mark.parametrize(("trapezoidal", "prior_input"), [(False, False), (True, False), (True, True)])
 def test_untrained_dynamics_mdgs_steps_as_the_rigid_tree_reference(tiny_cubli, trapezoidal, prior_input):
     """``actuation="dynamics"`` untrained is the "rigid tree + joints" reference, with the trapezoidal

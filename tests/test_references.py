@@ -244,3 +244,28 @@ def test_a_compiled_step_that_compiles_again_is_timed_eagerly_and_says_why(test_
     c = cost.compiled_cost(ref, test_split, "inductor")
     assert c["compiled"] == "none" and "inductor: ModelError: the compiled step compiles again" in c["note"]
     assert ref.step.__func__ is type(ref).step and c["single"]["ms_per_frame"] > 0
+
+
+@pytest.mark.parametrize("settings", [{}, {"actuation": "dynamics", "trapezoidal": True, "prior_input": True}],
+                         ids=["paper", "dynamics-prior"])
+def test_the_mdgs_step_traces_as_one_graph_without_breaks(test_split, settings):
+    """What ``compile_step(model, "cudagraphs")`` captures must be one graph: on one H100 (torch 2.11) a
+    single graph break (``bool`` of a Python list in ``JointSet.__bool__``) left the rest of MDGS's step
+    eager, 55 kernel launches and 7 graph replays a step, 1.93 ms instead of 0.47
+    (docs/results/benchmarks/profile_step-cuda-h100-cudagraphs.txt). Traced here by dynamo alone (no
+    inductor, seconds), on the CPU, inside Horn's rotation fit as the captured step is."""
+    from mdgs.structure import horn_rotations
+
+    cls = MODELS["mdgs"]
+    net = cls.from_data(test_split, cls.Config(**settings)).eval()
+    net.bind(test_split)
+    traj = np.arange(test_split.x.shape[0])
+    st = net.initial_state(test_split, traj, net.history)
+    ctrl = torch.from_numpy(test_split.ctrl[traj, net.history])
+    eager = type(net).step.__get__(net)
+    with torch.no_grad():
+        eager(st, ctrl)  # the first step fills the scene's caches, as compile_step's first (eager) step does
+        with horn_rotations():
+            ex = torch._dynamo.explain(eager)(st, ctrl)
+    assert ex.graph_break_count == 0, [b.reason.splitlines()[0] for b in ex.break_reasons]
+    assert ex.graph_count == 1
