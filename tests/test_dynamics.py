@@ -598,3 +598,34 @@ def test_large_batched_systems_are_solved_on_a_multithreaded_cpu():
             np.testing.assert_allclose(x[i].numpy(), torch.linalg.solve(K[i], b[i]).numpy(), rtol=1e-12, atol=1e-15)
     finally:
         torch.set_num_threads(n_threads)
+
+
+def test_the_relative_loss_reuses_the_passes_forward_dynamics_and_gives_the_same_loss(tiny_cubli, monkeypatch):
+    """The relative loss divides each pair's error by that of g's output zero, whose step needs the
+    priors' increments the forward pass has just computed from the same state: reused, the forward
+    dynamics is solved once per pass instead of twice, and the loss is the one with the zero step's own
+    solve (to float round-off: the same solve on the same inputs)."""
+    import mdgs.models.mdgs as mdgs_module
+
+    tr = load_split(tiny_cubli / "train.h5")
+    torch.manual_seed(0)
+    net = MODELS["mdgs"].from_data(tr, MODELS["mdgs"].Config(actuation="dynamics", loss="relative", noise="none"))
+    torch.nn.init.normal_(net.state.lins[-1].weight, std=0.05)
+    net.bind(tr)
+    b = batch_of(tr, tr.pairs(0)[:8], "cpu")
+    calls = []
+    real = mdgs_module.coupled_motor_accelerations
+
+    def counted(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(mdgs_module, "coupled_motor_accelerations", counted)
+    with torch.no_grad():
+        reused = net.losses(b)["mse"]
+        assert len(calls) == 1
+        original = net._zero_step
+        net._zero_step = lambda scene, x, v, ctrl, priors=None: original(scene, x, v, ctrl)  # solve again
+        again = net.losses(b)["mse"]
+    assert len(calls) == 3
+    np.testing.assert_allclose(float(reused), float(again), rtol=1e-6)

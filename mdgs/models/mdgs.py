@@ -290,6 +290,8 @@ class Prediction:
         dense path built from ``contact_mask`` [B, N, N] when first read, so a rollout step (which
         never reads it) has no data-dependent ``nonzero`` (a host sync, and a graph break for
         ``torch.compile``).
+    priors : the priors' velocity increments this pass added (:meth:`MDGS._priors`; no gradient), which
+        the relative loss's zero-output step reuses instead of solving the forward dynamics again.
     """
 
     x: torch.Tensor
@@ -299,6 +301,7 @@ class Prediction:
     force_contact: torch.Tensor
     edges: torch.Tensor | None = None
     contact_mask: torch.Tensor | None = None
+    priors: list | None = None
 
     @property
     def contact_edges(self) -> torch.Tensor:
@@ -664,7 +667,7 @@ class MDGS(Simulator):
         m = moving.view(1, N, 1)
         x_next = torch.where(m, x_next, x)
         v_next = torch.where(m, v_next, torch.zeros_like(v_next))
-        return Prediction(x_next, v_next, f, f_nc, f_c, ce, mask)
+        return Prediction(x_next, v_next, f, f_nc, f_c, ce, mask, priors)
 
     # --- the Simulator contract ------------------------------------------------------------------
     def step(self, state: State, ctrl: torch.Tensor) -> State:
@@ -719,8 +722,8 @@ class MDGS(Simulator):
             return mse_loss(p.x, p.v, x_true, v_true, moving, *scales)
         if kind == "huber":
             return huber_loss(p.x, p.v, x_true, v_true, moving, *scales)
-        with torch.no_grad():  # the zero output's error on each pair
-            x0, v0 = self._zero_step(scene, x, v, ctrl)
+        with torch.no_grad():  # the zero output's error on each pair (the priors are p's: the same state)
+            x0, v0 = self._zero_step(scene, x, v, ctrl, p.priors)
             r = pair_mse(x0, v0, x_true, v_true, moving, *scales)
         return (pair_mse(p.x, p.v, x_true, v_true, moving, *scales) / (r + r.median().clamp_min(1e-12))).mean()
 
@@ -773,10 +776,12 @@ class MDGS(Simulator):
                                         mask=scene.moving(dev))
         return x1, v1, pose
 
-    def _zero_step(self, scene: SceneGraph, x, v, ctrl) -> tuple:
-        """``x', v'`` of the state network's output zero (constant twist plus the priors; no joint projection)."""
-        return self._integrate(scene, x, v, torch.zeros(*x.shape[:-1], 6, dtype=x.dtype, device=x.device),
-                               self._priors(scene, x, v, ctrl))[:2]
+    def _zero_step(self, scene: SceneGraph, x, v, ctrl, priors: list | None = None) -> tuple:
+        """``x', v'`` of the state network's output zero (constant twist plus the priors; no joint projection);
+        ``priors`` those of ``x, v, ctrl`` if already computed (:meth:`_priors`)."""
+        if priors is None:
+            priors = self._priors(scene, x, v, ctrl)
+        return self._integrate(scene, x, v, torch.zeros(*x.shape[:-1], 6, dtype=x.dtype, device=x.device), priors)[:2]
 
     def loss_weights(self) -> dict[str, float]:
         return {"mse": 1.0, "cst": self.config.cst_weight}  # Section 3.4: summed

@@ -1,0 +1,49 @@
+"""What compiling the rigid tree's forward dynamics buys on this machine: eager against ``torch.compile``.
+
+    python benchmarks/compiled_dynamics.py [--scene cubli-triple] [--batch 16]
+
+One run, one torch thread, untrained weights, a ``tiny`` dataset of the scene
+(:func:`bench_models.tiny_splits`). For the rigid-tree reference (constant twist with the whole tree's
+forward dynamics, trapezoidal) and MDGS on that prior (``actuation = "dynamics"``), ms per frame for
+one trajectory and per trajectory-frame at ``--batch`` trajectories, eager and compiled with inductor
+(:func:`mdgs.evaluate.cost.compiled_cost`; compile seconds outside the timings). Compiled, the forward
+dynamics solves with a slot for every contact candidate and runs every pass
+(:func:`mdgs.actuation.coupled_motor_accelerations`), so that its shapes do not follow the state: cheaper
+for one trajectory (no graph breaks), dearer in a batch (larger systems than the eager step's).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import torch
+from bench_models import tiny_splits
+
+from mdgs.evaluate.cost import compiled_cost
+from mdgs.models import MODELS
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scene", default="cubli-triple")
+    ap.add_argument("--batch", type=int, default=16)
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    tr, te = tiny_splits(args.scene)
+    ct, md = MODELS["constant-twist"], MODELS["mdgs"]
+    builds = {"rigid tree, trapezoidal": lambda: ct.from_data(te, ct.Config(dynamics=True, trapezoidal=True)),
+              "mdgs + dynamics prior": lambda: md.from_data(tr, md.Config(actuation="dynamics", trapezoidal=True))}
+    print(f"scene {args.scene}: {tr.x.shape[2]} nodes, CPU, 1 torch thread")
+    print(f"{'model':26s}{'step':>10s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>12s}{'compile s':>11s}")
+    for label, build in builds.items():
+        for mode in ("none", "inductor"):
+            r = compiled_cost(build(), te, mode, batched=args.batch)
+            print(f"{label:26s}{r['compiled']:>10s}{r['single']['ms_per_frame']:>10.3f}"
+                  f"{r['batched']['ms_per_trajectory_frame']:>12.3f}{r['compile_seconds']:>11.0f}"
+                  + (f"  ({r['note']})" if r["note"] else ""), flush=True)
+    print("step: none = eager, inductor = torch.compile; ms/f b1: ms per frame, one trajectory; ms/tf bN: ms per "
+          "trajectory-frame at batch N")
+
+
+if __name__ == "__main__":
+    main()
