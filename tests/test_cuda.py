@@ -71,9 +71,9 @@ def _close(a: torch.Tensor, b: torch.Tensor, rel: float, floor: float) -> float:
 
 
 @pytest.mark.parametrize("name", TORCH_MODELS)
-def test_one_step_agrees_between_cpu_and_cuda(name, splits):
-    tr, te = splits
-    cpu, gpu = _pair(name, tr)
+def _first_steps_agree(cpu, gpu, te) -> None:
+    """The first rollout step of every test trajectory on both devices: displacement over the frame (m)
+    and velocity (m/s) within 1e-3 of their largest entry."""
     outs = []
     for m in (cpu, gpu):
         m.bind(te)
@@ -84,8 +84,19 @@ def test_one_step_agrees_between_cpu_and_cuda(name, splits):
             nxt = m.step(st, ctrl)
         assert nxt.x.device.type == m.device.type and nxt.v.device.type == m.device.type
         outs.append((nxt.x - st.x, nxt.v))
-    _close(outs[0][0], outs[1][0], 1e-3, 1e-9)  # displacement over the frame, m
-    _close(outs[0][1], outs[1][1], 1e-3, 1e-9)  # velocity, m/s
+    _close(outs[0][0], outs[1][0], 1e-3, 1e-9)
+    _close(outs[0][1], outs[1][1], 1e-3, 1e-9)
+
+
+def _short(te, n: int):
+    """The first ``n`` frames of every trajectory of ``te``."""
+    return dataclasses.replace(te, **{k: getattr(te, k)[:, :n] for k in ("x", "v", "ctrl", "qpos", "qvel", "act")
+                                      if getattr(te, k) is not None})
+
+
+def test_one_step_agrees_between_cpu_and_cuda(name, splits):
+    tr, te = splits
+    _first_steps_agree(*_pair(name, tr), te)
 
 
 @pytest.mark.parametrize("name", [n for n in TORCH_MODELS if MODELS[n].learned])
@@ -110,8 +121,7 @@ def test_short_rollout_agrees_between_cpu_and_cuda(name, splits):
     cpu, gpu = _pair(name, tr)
     h = cpu.history
     n = h + 11  # the given frames and 10 predicted ones
-    short = dataclasses.replace(te, **{k: getattr(te, k)[:, :n] for k in ("x", "v", "ctrl", "qpos", "qvel", "act")
-                                      if getattr(te, k) is not None})
+    short = _short(te, n)
     a, b = rollout(cpu, short), rollout(gpu, short)
     ca, cb = a.pos_mse[:, h + 1:n], b.pos_mse[:, h + 1:n]
     assert np.isfinite(cb).all() == np.isfinite(ca).all()
@@ -192,24 +202,16 @@ def test_mdgs_on_the_dynamics_prior_agrees_between_cpu_and_cuda(which, splits):
     10-frame rollout agree between the devices, to the tolerances of the module docstring."""
     tr, te = splits
     cpu, gpu = _dynamics_pair(DYNAMICS_CONFIGS[which], tr)
-    outs, terms = [], []
+    _first_steps_agree(cpu, gpu, te)
+    terms = []
     for m in (cpu, gpu):
-        m.bind(te)
-        traj = np.arange(te.x.shape[0])
-        st = m.initial_state(te, traj, m.history)
-        ctrl = torch.from_numpy(te.ctrl[traj, m.history]).to(m.device)
+        m.bind(tr)
         with torch.no_grad():
-            nxt = m.step(st, ctrl)
-            m.bind(tr)
             terms.append(m.losses(batch_of(tr, tr.pairs(m.history)[:16], m.device, m.history)))
-        outs.append((nxt.x - st.x, nxt.v))
-    _close(outs[0][0], outs[1][0], 1e-3, 1e-9)
-    _close(outs[0][1], outs[1][1], 1e-3, 1e-9)
     for k in terms[0]:
         _close(terms[0][k], terms[1][k], 1e-3, 1e-12)
     h = cpu.history
-    short = dataclasses.replace(te, **{k: getattr(te, k)[:, :h + 11] for k in ("x", "v", "ctrl", "qpos", "qvel", "act")
-                                      if getattr(te, k) is not None})
+    short = _short(te, h + 11)
     a, b = rollout(cpu, short), rollout(gpu, short)
     np.testing.assert_allclose(b.pos_mse[:, h + 1:], a.pos_mse[:, h + 1:], rtol=1e-2, atol=1e-12)
 
