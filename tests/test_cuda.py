@@ -70,7 +70,6 @@ def _close(a: torch.Tensor, b: torch.Tensor, rel: float, floor: float) -> float:
     return err
 
 
-@pytest.mark.parametrize("name", TORCH_MODELS)
 def _first_steps_agree(cpu, gpu, te) -> None:
     """The first rollout step of every test trajectory on both devices: displacement over the frame (m)
     and velocity (m/s) within 1e-3 of their largest entry."""
@@ -94,6 +93,7 @@ def _short(te, n: int):
                                       if getattr(te, k) is not None})
 
 
+@pytest.mark.parametrize("name", TORCH_MODELS)
 def test_one_step_agrees_between_cpu_and_cuda(name, splits):
     tr, te = splits
     _first_steps_agree(*_pair(name, tr), te)
