@@ -778,7 +778,9 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     its range under load as in the data.
 
     A candidate whose surface or limit would have to pull is let go and the system solved again
-    (``CONTACT_PASSES`` passes, an active-set search). Not modelled: the friction cone of a sticking
+    (``CONTACT_PASSES`` passes, an active-set search). Compiled (``torch.compile``, a CUDA graph), every
+    candidate has a slot and all passes run, so that no shape follows the state: the same multipliers
+    (tests/test_dynamics.py), one graph, dearer in batches (benchmarks/compiled_dynamics.py). Not modelled: the friction cone of a sticking
     corner (it holds whatever tangential force sticking takes), rolling and torsional friction, the
     softness of MuJoCo's contacts (tried, worse at one step per frame: docs/mdgs-experiments.md), limits
     of ball joints, damping, springs and friction loss, and contact between moving bodies or with
