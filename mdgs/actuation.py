@@ -780,11 +780,12 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     A candidate whose surface or limit would have to pull is let go and the system solved again
     (``CONTACT_PASSES`` passes, an active-set search). Compiled (``torch.compile``, a CUDA graph), every
     candidate has a slot and all passes run, so that no shape follows the state: the same multipliers
-    (tests/test_dynamics.py), one graph, dearer in batches (benchmarks/compiled_dynamics.py). Not modelled: the friction cone of a sticking
-    corner (it holds whatever tangential force sticking takes), rolling and torsional friction, the
-    softness of MuJoCo's contacts (tried, worse at one step per frame: docs/mdgs-experiments.md), limits
-    of ball joints, damping, springs and friction loss, and contact between moving bodies or with
-    other geoms: ``drives.unseen`` names what a scene has of these, and the rigid tree and MDGS's
+    (tests/test_dynamics.py), one graph, dearer in batches (benchmarks/compiled_dynamics.py).
+
+    Not modelled: the friction cone of a sticking corner (it holds whatever tangential force sticking
+    takes), rolling and torsional friction, the softness of MuJoCo's contacts (tried, worse at one step
+    per frame: docs/mdgs-experiments.md), limits of ball joints, damping, springs and friction loss, and
+    contact between moving bodies or with other geoms: ``drives.unseen`` names what a scene has of these, and the rigid tree and MDGS's
     "dynamics" prior warn with it when bound (:func:`warn_unseen`).
     """
     dynamic = v is not None
