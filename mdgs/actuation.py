@@ -75,6 +75,11 @@ CONTACT_GAP = 2e-3
 #: Compliance of a held corner (m/s^2 per N): small against the bodies' 1/mass, it only makes four
 #: corners of a face (twelve rows for six degrees of freedom) share the load.
 CONTACT_COMPLIANCE = 1e-6
+#: Held candidates not yet touching (a gap up to the frame's travel): False, the studies' rule, stops the
+#: point's approach over the frame (its end velocity zero); True ("speculative"), lets it arrive on the
+#: surface at the frame's end under the trapezoidal step where the gap is more than half the frame's
+#: travel (benchmarks/mdgs_probes/speculative_contact.py; not a default: see its output).
+CONTACT_SPECULATIVE = False
 #: Passes of the active-set search that lets go of corners a surface would pull (and limits that would pull).
 CONTACT_PASSES = 4
 #: Points on each rim of a colliding cylinder that stand in for it as corners against curved or bounded
@@ -888,7 +893,13 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         fric = Jc[:, :, 2] - ct.mu.view(1, -1, 1) * (uhat[..., :1] * Jc[:, :, 0] + uhat[..., 1:] * Jc[:, :, 1])
         cand_J.append(Jc)
         cand_C.append(torch.cat([Jc[:, :, :2], torch.where(ct.slide.unsqueeze(-1), fric, Jc[:, :, 2]).unsqueeze(2)], 2))
-        cand_r.append((ct.frame @ want.unsqueeze(-1)).squeeze(-1))
+        r = (ct.frame @ want.unsqueeze(-1)).squeeze(-1)  # [B, C, 3]
+        if CONTACT_SPECULATIVE:  # end the frame on the surface under the trapezoidal step: end velocity
+            # u_n' = min(0, -2 gap / dt - u_n), so that dt (u_n + u_n') / 2 = -gap where that needs no rebound
+            un = (ct.u * ct.frame[:, :, 2]).sum(-1)
+            extra = (-2.0 * ct.gap.clamp_min(0.0) / dt - un).clamp_max(0.0) / dt
+            r = torch.cat([r[..., :2], (r[..., 2] + extra).unsqueeze(-1)], -1)
+        cand_r.append(r)
         cand_on.append(torch.stack([~ct.slide, ~ct.slide, torch.ones_like(ct.slide)], -1))
         cand_held.append(ct.held)
         cand_R.append(torch.full(ct.held.shape + (3,), CONTACT_COMPLIANCE, dtype=f64, device=dev))
