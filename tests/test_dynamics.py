@@ -629,3 +629,19 @@ def test_the_relative_loss_reuses_the_passes_forward_dynamics_and_gives_the_same
         again = net.losses(b)["mse"]
     assert len(calls) == 3
     np.testing.assert_allclose(float(reused), float(again), rtol=1e-6)
+
+
+def test_speculative_contact_lands_a_striking_box_on_the_floor_at_the_frames_end(monkeypatch):
+    """``CONTACT_SPECULATIVE`` (off by default; benchmarks/mdgs_probes/speculative_contact.py): falling at 2
+    m/s with its lowest face 15 mm above the floor (dt = 10 ms: it would pass the floor), the face ends the
+    frame on the floor under the trapezoidal step, dt (u + u') / 2 = -15 mm, so u' = -1 m/s and a = (u' -
+    u) / dt = +100 m/s^2, where the default rule stops it (a = +200: u' = 0). A face more than half the
+    frame's travel closer keeps the default rule (no rebound is asked for)."""
+    import mdgs.actuation as actuation
+
+    monkeypatch.setattr(actuation, "CONTACT_SPECULATIVE", True)
+    _, a, alpha, _ = _box_acc(np.eye(3), np.array([0, 0, H + 0.015]), vc=np.array([0, 0, -2.0]), dt=0.01)
+    np.testing.assert_allclose(a, [0, 0, 100.0], atol=1e-2)
+    np.testing.assert_allclose(alpha, 0, atol=1e-6)
+    _, a, _, _ = _box_acc(np.eye(3), np.array([0, 0, H + 0.005]), vc=np.array([0, 0, -2.0]), dt=0.01)
+    np.testing.assert_allclose(a, [0, 0, 200.0], atol=1e-2)
