@@ -6,7 +6,11 @@
 #   2. the same for MDGS with its step compiled (cudagraphs, inductor) at batch 1 and 256;
 #   3. tests/test_cuda.py: every model on the GPU against the CPU (step, losses, rollout), the trainer
 #      and `mdgs evaluate --device cuda` end to end, compiled steps on the GPU;
-#   4. benchmarks/profile_step.py --device cuda: kernels per single-trajectory step and the GPU-busy share.
+#   4. benchmarks/profile_step.py --device cuda: kernels per single-trajectory step and the GPU-busy share, eager
+#      and replayed as CUDA graphs (launches, graph replays and device waits per step; dynamo's graph breaks logged).
+# Open on the next loan (docs/results.md, "third loan"): whether MDGS on the rigid tree's forward dynamics, which
+# now traces as one graph when compiled, captures and what it then costs (PARTS=tests PYTEST_K=dynamics_prior).
+# Only the 15-minute loan is needed for a part; each device call starts a fresh machine unless the last is warm.
 # PARTS picks parts (default "eager compiled tests profile"); all four take more than one 10-minute
 # device call, so run PARTS="eager compiled" and PARTS="tests profile" as two calls.
 # PYTEST_K selects tests (pytest -k). Outputs go to $OUT (default cuda-out/): env.txt, bench_eager.txt,
@@ -38,6 +42,6 @@ has tests && echo "tests: $((SECONDS - s)) s" | tee -a "$OUT/test_cuda.log"
 s=$SECONDS
 has profile && timeout "${T_PROFILE:-150}" python3 benchmarks/profile_step.py --device cuda --repeats 3 2>&1 \
   | grep -v -E "Warning|warnings.warn" | tee "$OUT/profile_cuda.txt"
-has profile && timeout "${T_PROFILE:-150}" python3 benchmarks/profile_step.py --device cuda --repeats 3 --compile \
+has profile && timeout "${T_PROFILE:-150}" python3 benchmarks/profile_step.py --device cuda --repeats 3 --compile cudagraphs \
   --models mdgs gns constant-twist 2>&1 | grep -v -E "Warning|warnings.warn" | tee -a "$OUT/profile_cuda.txt"
 has profile && echo "profile: $((SECONDS - s)) s" | tee -a "$OUT/profile_cuda.txt"
