@@ -10,7 +10,6 @@
 #      and replayed as CUDA graphs (launches, graph replays and device waits per step; dynamo's graph breaks logged).
 # Open on the next loan (docs/results.md, "third loan"): whether MDGS on the rigid tree's forward dynamics, which
 # now traces as one graph when compiled, captures and what it then costs (PARTS=tests PYTEST_K=dynamics_prior).
-# Only the 15-minute loan is needed for a part; each device call starts a fresh machine unless the last is warm.
 # PARTS picks parts (default "eager compiled tests profile"); all four take more than one 10-minute
 # device call, so run PARTS="eager compiled" and PARTS="tests profile" as two calls.
 # PYTEST_K selects tests (pytest -k). Outputs go to $OUT (default cuda-out/): env.txt, bench_eager.txt,
