@@ -1,6 +1,6 @@
 """Where the rigid tree's one step per frame loses to MuJoCo's own one step per frame: one-step node errors
 of both from the recorded states, split by what acts on the bodies at that frame
-(docs/mdgs-experiments.md, "Where the targets stand").
+(docs/mdgs-experiments.md, "What the learned correction adds to the rigid tree").
 
     python benchmarks/mdgs_probes/one_step_by_constraint.py DATA_FOLDER SCENE [SCENE ...]
 
@@ -10,8 +10,9 @@ recorded state: the trapezoidal "rigid tree + joints" reference's step and MuJoC
 over moving nodes, 10^-6 m^2). Pairs are grouped by what MuJoCo's own constraints hold at the frame (at
 the data's timestep, ``mj_forward`` on the recorded state): a joint's range limit, contact with the world,
 both or neither. Printed per group: how many pairs, the mean and the median of each error and the
-fraction of pairs where the rigid tree is the worse of the two; then the 8 pairs with its largest error. A step's error compounds over a
-rollout, so a group where the rigid tree is much worse is where its physics, not its integrator, loses.
+fraction of pairs where the rigid tree is the worse of the two; then the 8 pairs with its largest error. A
+step's error compounds over a rollout, so a group where the rigid tree is much worse is where its physics,
+not its integrator, loses.
 """
 import sys
 from pathlib import Path

@@ -723,7 +723,7 @@ class MDGS(Simulator):
         if kind == "huber":
             return huber_loss(p.x, p.v, x_true, v_true, moving, *scales)
         with torch.no_grad():  # the zero output's error on each pair (the priors are p's: the same state)
-            x0, v0 = self._zero_step(scene, x, v, ctrl, p.priors)
+            x0, v0 = self._zero_step(scene, x, v, p.priors)
             r = pair_mse(x0, v0, x_true, v_true, moving, *scales)
         return (pair_mse(p.x, p.v, x_true, v_true, moving, *scales) / (r + r.median().clamp_min(1e-12))).mean()
 
@@ -776,11 +776,9 @@ class MDGS(Simulator):
                                         mask=scene.moving(dev))
         return x1, v1, pose
 
-    def _zero_step(self, scene: SceneGraph, x, v, ctrl, priors: list | None = None) -> tuple:
-        """``x', v'`` of the state network's output zero (constant twist plus the priors; no joint projection);
-        ``priors`` those of ``x, v, ctrl`` if already computed (:meth:`_priors`)."""
-        if priors is None:
-            priors = self._priors(scene, x, v, ctrl)
+    def _zero_step(self, scene: SceneGraph, x, v, priors: list) -> tuple:
+        """``x', v'`` of the state network's output zero (constant twist plus ``priors``, the velocity
+        increments :meth:`_priors` gives for ``x, v``; no joint projection)."""
         return self._integrate(scene, x, v, torch.zeros(*x.shape[:-1], 6, dtype=x.dtype, device=x.device), priors)[:2]
 
     def loss_weights(self) -> dict[str, float]:
