@@ -66,7 +66,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from mdgs.rigid import twist
+from mdgs.rigid import advance, twist
 from mdgs.structure import fixes_rotation, kabsch, segment_mean
 
 #: Forward dynamics' contact (:func:`coupled_motor_accelerations`): a box corner closer to a surface than
@@ -94,6 +94,11 @@ RIM_SUPPORT = 3
 #: ("Pivots given to lu_solve must all be greater or equal to 1"), met on rotational-center's rollouts
 #: (205 unknowns) and reproduced with random well-conditioned matrices (tests/test_dynamics.py).
 BATCHED_SOLVE_MAX = 128
+#: :func:`push_out` leaves a corner this deep (m) where it is and moves a deeper one back to this depth, by
+#: this fraction of the way per step: 0 and 1 (all the way out at once) were better on the studies' validation
+#: splits than the game engines' slop of about a millimetre and fraction 0.2 (benchmarks/mdgs_probes/push_out.py).
+PUSH_OUT_SLOP = 0.0
+PUSH_OUT_FRACTION = 1.0
 #: World geoms a corner can touch (MuJoCo's type names); others are listed in ``DriveSet.unseen``.
 SURFACE_KINDS = ("plane", "box", "sphere", "capsule", "cylinder")
 #: Revision of the forward dynamics' results: bump it by one with every change that moves them (a new
@@ -105,7 +110,7 @@ SURFACE_KINDS = ("plane", "box", "sphere", "capsule", "cylinder")
 FORWARD_DYNAMICS_REVISION = 0
 
 __all__ = ["FORWARD_DYNAMICS_REVISION", "Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
-           "motor_accelerations", "coupled_motor_accelerations", "contacts", "warn_unseen"]
+           "motor_accelerations", "coupled_motor_accelerations", "contacts", "push_out", "warn_unseen"]
 
 
 @dataclass(frozen=True)
@@ -728,6 +733,137 @@ def _joint_angles(R: torch.Tensor, t: torch.Tensor, lk: Link) -> torch.Tensor:
     return lk.qpos0 + (rel - torch.as_tensor(lk.origin, dtype=f64, device=dev)) @ axis
 
 
+def push_out(x: torch.Tensor, v: torch.Tensor, drives: DriveSet, ref: torch.Tensor, seg: torch.Tensor, n_obj: int,
+             mass: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Move the tree out of the world's surfaces, keeping its twists: a position correction after a step.
+
+    The contact rows of :func:`coupled_motor_accelerations` hold accelerations: a corner that ends a
+    frame inside a surface (the trapezoidal step's half-frame of travel after an impact, a rolling rim
+    whose linearised path dips) stays there and sinks further with every such frame. Here the
+    smallest mass-weighted displacement of the objects, ``d = (a_s, alpha_s)`` (translation of each
+    mass centre, rotation vector), that puts every penetrating corner back on its surface with the
+    joints and the world's elements kept::
+
+        [ M   J^T ] [ d ]   [  0   ]       J: the joints' and the fixed objects' rows of the tree
+        [ J    0  ] [ l ] = [  0   ]       (:func:`coupled_motor_accelerations`), N: the normal rows of the
+        [ N    .  ]         [ -gap ]       corners with ``gap < 0`` (:func:`contacts`)
+
+    (the same system with displacements for accelerations; a corner whose surface would have to pull
+    is let go, ``CONTACT_PASSES`` passes, and the rows have ``CONTACT_COMPLIANCE``). Each object moves
+    rigidly by its ``d`` (:func:`mdgs.rigid.advance` over no time), its twist unchanged: the split
+    impulse of game physics (Catto 2006; Tonge et al. 2012), where Baumgarte's correction through the
+    velocities would launch the bodies. Linear in ``d``: a correction of a few millimetres leaves an
+    error of its square over the lever arm. ``x, v`` [B, N, 3]; returns them moved, in ``x``'s dtype;
+    unchanged without surfaces."""
+    if not (len(drives.corner_obj) or len(drives.rim_obj)):
+        return x, v
+    dev, f64 = x.device, torch.float64
+    T = drives.tensors(dev)
+    xd, seg, mass = x.to(f64), seg.to(dev), mass.to(dev)
+    B, S = x.shape[0], n_obj
+    R, t = kabsch(ref.to(dev, f64), xd, seg, n_obj)
+    tw = twist(xd, v.to(f64), seg, n_obj, mass)
+    still = tw._replace(vc=torch.zeros_like(tw.vc), omega=torch.zeros_like(tw.omega))
+    ct = contacts(R, t, still, drives, 1.0)
+    xs, M, _, J, _, _ = _tree(xd, R, t, T, drives, S, None)
+    Jm = torch.cat(J, 1) if J else xd.new_zeros(B, 0, 6 * S)
+    C0 = Jm.shape[1]
+    arm = ct.P - xs[:, ct.obj]  # [B, C, 3]
+    n = ct.frame[:, :, 2]
+    onehot = torch.nn.functional.one_hot(ct.obj, S).to(f64)  # [C, S]
+    Nc = torch.einsum("bck,cs->bcsk", torch.cat([n, torch.linalg.cross(arm, n, dim=-1)], -1), onehot).reshape(B, -1, 6 * S)
+    active = ct.gap < -PUSH_OUT_SLOP
+    static = torch.compiler.is_compiling()
+    if not static and not bool(active.any()):
+        return x, v
+    for _ in range(CONTACT_PASSES):
+        on = active.to(f64)
+        Jall = torch.cat([Jm, Nc * on.unsqueeze(-1)], 1)
+        diag = torch.cat([xd.new_zeros(B, C0), torch.where(active, -CONTACT_COMPLIANCE, 1.0)], -1)
+        K = torch.cat([torch.cat([M, Jall.transpose(-1, -2)], -1), torch.cat([Jall, torch.diag_embed(diag)], -1)], 1)
+        b = torch.cat([xd.new_zeros(B, 6 * S + C0), -PUSH_OUT_FRACTION * (ct.gap + PUSH_OUT_SLOP) * on], -1)
+        sol = _solve(K, b)
+        pulls = active & (sol[:, 6 * S + C0:] > 0)
+        if not static and not bool(pulls.any()):
+            break
+        active = active & ~pulls
+    d = sol[:, :6 * S].view(B, S, 6)
+    alpha = d[..., 3:]
+    dc = d[..., :3] + torch.linalg.cross(alpha, tw.c - xs, dim=-1)  # the node centre's displacement
+    xn, vn = advance(xd, tw, tw.vc, tw.omega, 0.0, seg, dc, alpha)
+    return xn.to(x.dtype), vn.to(v.dtype)
+
+
+def _world_of(R: torch.Tensor, t: torch.Tensor, s: int, v: np.ndarray, point: bool = False) -> torch.Tensor:
+    """Vectors (points) [k, 3] given in object s's frame (-1: the world) in the world [B, k, 3], the objects'
+    poses ``R, t`` [B, S, 3, 3], [B, S, 3]."""
+    vv = torch.as_tensor(np.atleast_2d(v), dtype=torch.float64, device=R.device).expand(R.shape[0], -1, 3)
+    if s < 0:
+        return vv
+    return (R[:, s].unsqueeze(1) @ vv.unsqueeze(-1)).squeeze(-1) + (t[:, s].unsqueeze(1) if point else 0.0)
+
+
+def _joint_row(S: int, B: int, xd: torch.Tensor, xs: torch.Tensor, c: int, p: int, kind: str, n: torch.Tensor,
+               A: torch.Tensor) -> torch.Tensor:
+    """Row [B, 1, 6S] of the joint's rate: hinge ``n . (alpha_c - alpha_p)``, slide ``n . (a_c(A) - a_p(A))``."""
+    if kind == "hinge":
+        return _rows(S, B, xd, c, p, n)
+    return _rows(S, B, xd, c, p, n, A - xs[:, c], A - xs[:, p] if p >= 0 else None)
+
+
+def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: DriveSet, S: int,
+          w: torch.Tensor | None) -> tuple:
+    """The tree's mass matrix and joint rows at the poses ``R, t`` (:func:`coupled_motor_accelerations`).
+
+    Returns the mass centres ``xs`` [B, S, 3], ``M`` [B, 6S, 6S] (with the joints' armature), the world
+    inertias ``ang`` [B, S, 3, 3], the rows ``J`` (a list of [B, k, 6S]: the world's elements held, each
+    link's) with their right-hand sides ``rhs`` (list of [B, k]: the velocity terms of the twists ``w``
+    [B, S, 3], zero without them) and ``rate`` (child object -> its hinge's or slide's rate row [B, 1, 6S])."""
+    B, dev, f64 = xd.shape[0], xd.device, torch.float64
+    xs = (R @ T["com"].unsqueeze(-1)).squeeze(-1) + t  # mass centres [B, S, 3]
+    fixed = torch.as_tensor(drives.fixed, device=dev)
+    eye3 = torch.eye(3, dtype=f64, device=dev)
+    lin = torch.where(fixed.view(S, 1, 1), eye3, T["mass"].view(S, 1, 1) * eye3)  # [S, 3, 3]
+    ang = torch.where(fixed.view(1, S, 1, 1), eye3, R @ T["inertia"] @ R.transpose(-1, -2))  # [B, S, 3, 3]
+    blocks = xd.new_zeros(B, S, 6, 6)
+    blocks[:, :, :3, :3] = lin
+    blocks[:, :, 3:, 3:] = ang
+    M = torch.einsum("bsij,st->bsitj", blocks, torch.eye(S, dtype=f64, device=dev)).reshape(B, 6 * S, 6 * S)
+    J, rhs = [], []
+    zero3 = xd.new_zeros(B, 3)
+    for s in drives.constants()["fixed"]:  # the world's elements stay put
+        J.append(torch.eye(6 * S, dtype=f64, device=dev)[6 * s: 6 * s + 6].expand(B, 6, 6 * S))
+        rhs.append(xd.new_zeros(B, 6))
+    world = eye3.expand(B, 3, 3)
+    rate = {}  # child object -> its joint's rate row
+    for lk in drives.links:
+        c, p = lk.child, lk.parent
+        A = _world_of(R, t, p, lk.anchor, point=True)[:, 0]
+        rc, rp = A - xs[:, c], (A - xs[:, p] if p >= 0 else None)
+        wc = w[:, c] if w is not None else zero3
+        wp = w[:, p] if w is not None and p >= 0 else zero3
+        if lk.kind in ("hinge", "ball", "weld"):
+            J.append(_rows(S, B, xd, c, p, world, rc, rp))
+            rp0 = rp if rp is not None else zero3
+            rhs.append(-(torch.linalg.cross(wc, torch.linalg.cross(wc, rc, dim=-1), dim=-1)
+                         - torch.linalg.cross(wp, torch.linalg.cross(wp, rp0, dim=-1), dim=-1)))
+        if lk.kind in ("slide", "weld"):
+            J.append(_rows(S, B, xd, c, p, world))
+            rhs.append(xd.new_zeros(B, 3))
+        if lk.kind == "hinge":
+            D = _world_of(R, t, p, lk.perp)  # [B, 2, 3], turning with the parent
+            J.append(_rows(S, B, xd, c, p, D))
+            rhs.append((D * torch.linalg.cross(wp, wc - wp, dim=-1).unsqueeze(1)).sum(-1))
+        if lk.kind == "slide":
+            J.append(_rows(S, B, xd, c, p, _world_of(R, t, p, lk.perp), rc, rp))
+            rhs.append(xd.new_zeros(B, 2))
+        if lk.kind in ("hinge", "slide"):
+            rate[c] = _joint_row(S, B, xd, xs, c, p, lk.kind, _world_of(R, t, p, lk.axis), A)  # [B, 1, 6S]
+            if lk.armature > 0:
+                M = M + lk.armature * rate[c].transpose(-1, -2) @ rate[c]
+    return xs, M, ang, J, rhs, rate
+
+
 def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
                                 seg: torch.Tensor, n_obj: int, v: torch.Tensor | None = None,
                                 mass: torch.Tensor | None = None, dt: float | None = None) -> torch.Tensor:
@@ -804,61 +940,16 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         tw = twist(xd, v, seg, n_obj, mass.to(dev))
         w = tw.omega  # [B, S, 3]
     B, S = x.shape[0], n_obj
-    xs = (R @ T["com"].unsqueeze(-1)).squeeze(-1) + t  # mass centres [B, S, 3]
+    xs, M, ang, J, rhs, rate = _tree(xd, R, t, T, drives, S, w if dynamic else None)
     fixed = torch.as_tensor(drives.fixed, device=dev)
-    eye3 = torch.eye(3, dtype=f64, device=dev)
-    lin = torch.where(fixed.view(S, 1, 1), eye3, T["mass"].view(S, 1, 1) * eye3)  # [S, 3, 3]
-    ang = torch.where(fixed.view(1, S, 1, 1), eye3, R @ T["inertia"] @ R.transpose(-1, -2))  # [B, S, 3, 3]
-    blocks = xd.new_zeros(B, S, 6, 6)
-    blocks[:, :, :3, :3] = lin
-    blocks[:, :, 3:, 3:] = ang
-    M = torch.einsum("bsij,st->bsitj", blocks, torch.eye(S, dtype=f64, device=dev)).reshape(B, 6 * S, 6 * S)
+    zero3 = xd.new_zeros(B, 3)
 
     def world_of(s: int, v: np.ndarray, point: bool = False) -> torch.Tensor:
-        """Vectors (points) [k, 3] given in object s's frame (-1: the world) in the world [B, k, 3]."""
-        vv = torch.as_tensor(np.atleast_2d(v), dtype=f64, device=dev).expand(B, -1, 3)
-        if s < 0:
-            return vv
-        return (R[:, s].unsqueeze(1) @ vv.unsqueeze(-1)).squeeze(-1) + (t[:, s].unsqueeze(1) if point else 0.0)
+        return _world_of(R, t, s, v, point)
 
     def joint_row(c: int, p: int, kind: str, n: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
-        """Row [B, 1, 6S] of the joint's rate: hinge ``n . (alpha_c - alpha_p)``, slide ``n . (a_c(A) - a_p(A))``."""
-        if kind == "hinge":
-            return _rows(S, B, xd, c, p, n)
-        return _rows(S, B, xd, c, p, n, A - xs[:, c], A - xs[:, p] if p >= 0 else None)
+        return _joint_row(S, B, xd, xs, c, p, kind, n, A)
 
-    J, rhs = [], []  # constraint rows [B, k, 6S] and their right-hand sides [B, k]
-    zero3 = xd.new_zeros(B, 3)
-    for s in drives.constants()["fixed"]:  # the world's elements stay put
-        J.append(torch.eye(6 * S, dtype=f64, device=dev)[6 * s: 6 * s + 6].expand(B, 6, 6 * S))
-        rhs.append(xd.new_zeros(B, 6))
-    world = eye3.expand(B, 3, 3)
-    rate = {}  # child object -> its joint's rate row
-    for lk in drives.links:
-        c, p = lk.child, lk.parent
-        A = world_of(p, lk.anchor, point=True)[:, 0]
-        rc, rp = A - xs[:, c], (A - xs[:, p] if p >= 0 else None)
-        wc = w[:, c] if dynamic else zero3
-        wp = w[:, p] if dynamic and p >= 0 else zero3
-        if lk.kind in ("hinge", "ball", "weld"):
-            J.append(_rows(S, B, xd, c, p, world, rc, rp))
-            rp0 = rp if rp is not None else zero3
-            rhs.append(-(torch.linalg.cross(wc, torch.linalg.cross(wc, rc, dim=-1), dim=-1)
-                         - torch.linalg.cross(wp, torch.linalg.cross(wp, rp0, dim=-1), dim=-1)))
-        if lk.kind in ("slide", "weld"):
-            J.append(_rows(S, B, xd, c, p, world))
-            rhs.append(xd.new_zeros(B, 3))
-        if lk.kind == "hinge":
-            D = world_of(p, lk.perp)  # [B, 2, 3], turning with the parent
-            J.append(_rows(S, B, xd, c, p, D))
-            rhs.append((D * torch.linalg.cross(wp, wc - wp, dim=-1).unsqueeze(1)).sum(-1))
-        if lk.kind == "slide":
-            J.append(_rows(S, B, xd, c, p, world_of(p, lk.perp), rc, rp))
-            rhs.append(xd.new_zeros(B, 2))
-        if lk.kind in ("hinge", "slide"):
-            rate[c] = joint_row(c, p, lk.kind, world_of(p, lk.axis), A)  # [B, 1, 6S]
-            if lk.armature > 0:
-                M = M + lk.armature * rate[c].transpose(-1, -2) @ rate[c]
     F = xd.new_zeros(B, 6 * S)
     if drives:
         u = _motor_forces(ctrl.to(dev, f64), T)  # [B, D]

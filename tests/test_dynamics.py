@@ -200,20 +200,22 @@ def test_the_compiled_forward_dynamics_solves_with_static_shapes_and_gives_the_e
     np.testing.assert_allclose(b.x.numpy(), a.x.numpy(), rtol=0, atol=1e-5)  # float32 states, 20 frames
 
 
-@pytest.mark.parametrize(("trapezoidal", "prior_input"), [(False, False), (True, False), (True, True)])
-def test_untrained_dynamics_mdgs_steps_as_the_rigid_tree_reference(tiny_cubli, trapezoidal, prior_input):
+@pytest.mark.parametrize(("trapezoidal", "prior_input", "push"), [(False, False, False), (True, False, False),
+                                                                 (True, True, False), (True, False, True)])
+def test_untrained_dynamics_mdgs_steps_as_the_rigid_tree_reference(tiny_cubli, trapezoidal, prior_input, push):
     """``actuation="dynamics"`` untrained is the "rigid tree + joints" reference, with the trapezoidal
-    step as with the semi-implicit one, and with g reading the prior's increment (1e-5 m over 10 steps:
-    float32 against float64)."""
+    step as with the semi-implicit one, with g reading the prior's increment, and both pushed out of the
+    floor (1e-5 m over 10 steps: float32 against float64)."""
     from mdgs.evaluate import reference_label
 
     tr, te = load_split(tiny_cubli / "train.h5"), load_split(tiny_cubli / "test.h5")
     b = batch_of(te, te.pairs(0)[:4], "cpu")
     ct = MODELS["constant-twist"]
-    ref = ct.from_data(te, ct.Config(dynamics=True, joints=True, trapezoidal=trapezoidal))
-    assert reference_label(ref) == "rigid tree + joints" + (", trapezoidal" if trapezoidal else "")
+    ref = ct.from_data(te, ct.Config(dynamics=True, joints=True, trapezoidal=trapezoidal, push_out=push))
+    assert reference_label(ref) == ("rigid tree + joints" + (", trapezoidal" if trapezoidal else "")
+                                    + (", push-out" if push else ""))
     net = MODELS["mdgs"].from_data(tr, MODELS["mdgs"].Config(actuation="dynamics", trapezoidal=trapezoidal,
-                                                              prior_input=prior_input))
+                                                              prior_input=prior_input, push_out=push))
     traj = {}
     for name, sim in (("ref", ref), ("mdgs", net)):
         sim.bind(te)
@@ -287,6 +289,8 @@ def test_the_rigid_tree_is_a_reference_of_mdgs_evaluate_and_does_not_take_the_mo
     assert _parse_reference("constant-twist:dynamics+joints") == ("constant-twist", {"dynamics": True, "joints": True})
     assert _parse_reference("constant-twist:dynamics+joints+trapezoidal")[1] == {"dynamics": True, "joints": True,
                                                                                "trapezoidal": True}
+    assert _parse_reference("constant-twist:dynamics+joints+trapezoidal+push-out")[1] == {
+        "dynamics": True, "joints": True, "trapezoidal": True, "push_out": True}
     ct = MODELS["constant-twist"]
     with pytest.raises(ValueError, match="already holds the motors"):
         ct.Config(dynamics=True, motors=True)
@@ -645,3 +649,83 @@ def test_speculative_contact_lands_a_striking_box_on_the_floor_at_the_frames_end
     np.testing.assert_allclose(alpha, 0, atol=1e-6)
     _, a, _, _ = _box_acc(np.eye(3), np.array([0, 0, H + 0.005]), vc=np.array([0, 0, -2.0]), dt=0.01)
     np.testing.assert_allclose(a, [0, 0, 200.0], atol=1e-2)
+
+
+def _push_box(R, t, w=(0.0, 0.0, 0.0), vc=(0.0, 0.0, 0.0)):
+    """The test box's nodes and velocities before and after :func:`mdgs.actuation.push_out` at pose (R, t)."""
+    from mdgs.actuation import push_out
+
+    m = mujoco.MjModel.from_xml_string(BOX)
+    nb, ref = _box_nodes(m)
+    ds = drives_of(m, nb, ref)
+    x = torch.tensor(ref @ R.T + t)[None]
+    v = torch.tensor(np.asarray(vc) + np.cross(np.asarray(w), ref @ R.T))[None]
+    seg = torch.zeros(8, dtype=torch.long)
+    mass = torch.full((8,), 0.25, dtype=torch.float64)
+    xn, vn = push_out(x, v, ds, torch.tensor(ref), seg, 1, mass)
+    return x[0].numpy(), v[0].numpy(), xn[0].numpy(), vn[0].numpy(), ref
+
+
+def _corner_heights(x, ref):
+    """The heights [8] of the test box's corners given its nodes (at half the corners: corners = 2 x nodes - centre)."""
+    c = x.mean(0)
+    return (c + 2 * (x - c))[:, 2]
+
+
+def test_push_out_lifts_a_sunken_box_onto_the_floor_and_keeps_its_twist():
+    """A box 5 mm into the floor on its face, moving sideways and turning about the vertical: push-out moves it
+    straight up by 5 mm (the least mass-weighted displacement that clears its four lowest corners), its nodes
+    still the same rigid shape, and its velocity field the same (a split impulse: positions only)."""
+    x, v, xn, vn, ref = _push_box(np.eye(3), np.array([0, 0, H - 0.005]), w=(0, 0, 1.0), vc=(0.3, 0, 0))
+    # to 1e-8 m: the rows' compliance (1e-6 per unit multiplier, the multipliers here 2 kg x 5 mm / 4) gives way 2.5e-9 m
+    np.testing.assert_allclose(xn - x, np.tile([0, 0, 0.005], (8, 1)), atol=1e-8)
+    np.testing.assert_allclose(vn, v, atol=1e-12)
+    assert _corner_heights(xn, ref).min() == pytest.approx(0.0, abs=1e-8)
+
+
+def test_push_out_tilts_a_box_whose_one_corner_is_in_the_floor_out_and_leaves_a_box_above_it_alone():
+    """Tilted on an edge-to-corner line with one corner 3 mm deep, the box is moved so that corner is on the floor
+    again to second order in the correction (a linearised step: (3 mm)^2 over the corner's 8.7 cm lever arm is 0.1 mm) and
+    no other corner goes in; a box 1 mm above the floor, or resting on it, is returned as it was."""
+    R = _rot_x(0.3) @ np.array([[np.cos(0.4), -np.sin(0.4), 0], [np.sin(0.4), np.cos(0.4), 0], [0, 0, 1]])
+    low = (R @ (H * np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)]).T))[2].min()
+    x, v, xn, vn, ref = _push_box(R, np.array([0, 0, -low - 0.003]), w=(1.0, -2.0, 0.5))
+    before, after = _corner_heights(x, ref), _corner_heights(xn, ref)
+    assert before.min() == pytest.approx(-0.003, abs=1e-9)
+    assert after.min() == pytest.approx(0.0, abs=1.5e-4)  # and no other corner went in
+    assert after[np.argmin(before)] - before.min() == pytest.approx(0.003, abs=1.5e-4)  # the deep corner rose
+    d = np.linalg.norm(xn[:, None] - xn[None], axis=-1) - np.linalg.norm(x[:, None] - x[None], axis=-1)
+    np.testing.assert_allclose(d, 0, atol=1e-12)  # still rigid
+    for z in (H + 0.001, H):
+        x, v, xn, vn, _ = _push_box(np.eye(3), np.array([0, 0, z]), vc=(0, 0, -1.0))
+        np.testing.assert_array_equal(xn, x)
+        np.testing.assert_array_equal(vn, v)
+
+
+def test_push_out_keeps_the_cubli_flywheels_on_their_hinges(tiny_cubli):
+    """The tiny Cubli's first test frame sunk 4 mm into the floor (every body moved down): push-out lifts the
+    whole tree together, cube and flywheels by the same 4 mm (the hinges hold: no body moves against another),
+    and leaves every body's twist as it was (its nodes' velocities turn with the body's tiny tilt)."""
+    from mdgs.actuation import push_out
+
+    d = load_split(tiny_cubli / "test.h5")
+    sc = SceneGraph.from_static(d.static, has_contact=d.has_contact)
+    ds = drives_of(d.mj_model(), d.static["node_body"], d.static["node_centroid"])
+    mov = torch.as_tensor(~np.asarray(d.static["node_static"], bool))
+    x = torch.as_tensor(d.x[:1, 0], dtype=torch.float64)
+    v = torch.as_tensor(d.v[:1, 0], dtype=torch.float64)
+    x = torch.where(mov.view(1, -1, 1), x - torch.tensor([0, 0, 0.004], dtype=torch.float64), x)
+    xn, vn = push_out(x, v, ds, sc.ref_shape.double(), sc.obj, sc.n_obj, sc.mass.double())
+    lift = (xn - x)[0, mov]
+    np.testing.assert_allclose(lift.numpy(), np.tile([0, 0, 0.004], (int(mov.sum()), 1)), atol=2e-4)
+    assert float((lift - lift.mean(0)).norm(dim=-1).max()) < 1e-4  # one rigid lift of the tree
+    before, after = twist(x, v, sc.obj, sc.n_obj, sc.mass.double()), twist(xn, vn, sc.obj, sc.n_obj, sc.mass.double())
+    np.testing.assert_allclose(after.vc.numpy(), before.vc.numpy(), atol=1e-9)
+    np.testing.assert_allclose(after.omega.numpy(), before.omega.numpy(), atol=1e-9)
+
+
+def test_push_out_is_refused_without_the_dynamics_it_belongs_to():
+    with pytest.raises(ValueError, match="dynamics"):
+        MODELS["constant-twist"].Config(push_out=True)
+    with pytest.raises(ValueError, match="dynamics"):
+        MODELS["mdgs"].Config(push_out=True)

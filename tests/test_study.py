@@ -150,6 +150,12 @@ def test_rigid_tree_reference_is_one_more_cell_per_scene_and_earlier_cells_keep_
     assert [(c.label, dict(c.settings)) for c in more] == [
         ("rigid tree + joints, trapezoidal", {"dynamics": True, "joints": True, "trapezoidal": True})]
     assert reference_label(ct(ct.Config(**dict(more[0].settings)))) == more[0].label
+    pushed = load_study(_write(tmp_path, GOOD + "[references]\nmotors = true\njoints = true\nrigid_tree = true\n"
+                                                "rigid_tree_trapezoidal = true\nrigid_tree_push_out = true\n"))
+    last = [c for c in cells_of(pushed) if c.key(pushed) not in {k.key(both) for k in cells_of(both)}]
+    assert [(c.label, dict(c.settings)) for c in last] == [("rigid tree + joints, trapezoidal, push-out", {
+        "dynamics": True, "joints": True, "push_out": True, "trapezoidal": True})]
+    assert reference_label(ct(ct.Config(**dict(last[0].settings)))) == last[0].label
 
 
 def _changes_only_learned_keys(tmp_path, text: str, line: str, name: str):

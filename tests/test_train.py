@@ -230,11 +230,13 @@ def test_unroll_scores_every_step_of_the_models_own_rollout_with_gradient_throug
     assert not torch.allclose(g_full, g_cut, rtol=1e-3, atol=0), "no gradient through the earlier steps"
 
 
-def test_unrolled_training_has_finite_gradients_on_symmetric_bodies_with_motors(tmp_path):
+@pytest.mark.parametrize("prior", ["motors", "dynamics pushed out"])
+def test_unrolled_training_has_finite_gradients_on_symmetric_bodies_with_motors(tmp_path, prior):
     """The user scene (a hinged arm with a motor, a slider, a free box: bodies whose elements are
     symmetric, so the Kabsch SVD's singular values repeat): an unrolled training pass with the motor
-    prior gives finite gradients in every parameter (the prior's pose and the joint projection between
-    steps are taken without the SVD's gradient; with it the first backward pass is NaN)."""
+    prior, or the whole tree's dynamics with push-out between steps, gives finite gradients in every
+    parameter (the prior's pose, the push-out and the joint projection between steps are taken without
+    the SVD's gradient; with it the first backward pass is NaN)."""
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
@@ -243,7 +245,8 @@ def test_unrolled_training_has_finite_gradients_on_symmetric_bodies_with_motors(
     d = load_split(tmp_path / "hsf" / "train.h5")
     cls = MODELS["mdgs"]
     torch.manual_seed(0)
-    model = cls.from_data(d, cls.resolve_config(ModelConfig(unroll=3, actuation="prior"), d))
+    kw = dict(actuation="prior") if prior == "motors" else dict(actuation="dynamics", push_out=True, trapezoidal=True)
+    model = cls.from_data(d, cls.resolve_config(ModelConfig(unroll=3, **kw), d))
     model.bind(d)
     pairs = d.pairs(0, 3)
     gen = torch.Generator().manual_seed(0)

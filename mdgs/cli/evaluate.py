@@ -22,15 +22,18 @@ def _parse_reference(text: str) -> tuple[str, dict]:
         return name, {"dt_factor": k}
     if name == "constant-twist" and arg:
         parts = arg.split("+")
-        if not set(parts) <= {"motors", "joints", "coupled", "dynamics", "trapezoidal"} or len(set(parts)) != len(parts):
+        if not set(parts) <= {"motors", "joints", "coupled", "dynamics", "trapezoidal", "push-out"} or len(set(parts)) != len(parts):
             fail(f"--reference {text}: constant-twist takes motors, joints or motors+joints, coupled "
                  f"with motors, or dynamics (e.g. constant-twist:motors+joints, constant-twist:motors+coupled+joints, "
-                 f"constant-twist:dynamics+joints, +trapezoidal to move with the mean of the old and new twist)")
+                 f"constant-twist:dynamics+joints, +trapezoidal to move with the mean of the old and new twist, "
+                 f"+push-out with dynamics to move the tree out of the world's surfaces after every step)")
         if "coupled" in parts and "motors" not in parts:
             fail(f"--reference {text}: coupled is a form of the motors' response; write motors+coupled")
         if "dynamics" in parts and {"motors", "coupled"} & set(parts):
             fail(f"--reference {text}: dynamics already holds the motors; write dynamics or dynamics+joints")
-        return name, {k: True for k in parts}
+        if "push-out" in parts and "dynamics" not in parts:
+            fail(f"--reference {text}: push-out moves the rigid tree out of the surfaces; write dynamics+push-out")
+        return name, {k.replace("-", "_"): True for k in parts}
     if arg:
         fail(f"--reference {text}: {name} takes no setting")
     return name, {}

@@ -35,6 +35,7 @@ from mdgs.actuation import (
     coupled_motor_accelerations,
     drives_of,
     motor_accelerations,
+    push_out,
     warn_unseen,
 )
 from mdgs.data.split import SplitData
@@ -167,6 +168,15 @@ class MDGSConfig:
         pair, i.e. of constant twist plus the priors, plus the batch's median of it: every frame weighs
         alike however large its own increment, so the rare brake and impact frames that hold most of
         Eq. 10 cannot buy their fit with errors on the common quiet frames).
+    prior_input : g also reads what the priors (``actuation``, ``gravity_prior``) do this frame, their velocity
+        increment in g's own velocity units, beside ``[z || lam f]``.
+    fade : 0 (off) or F > 0: g's output is multiplied by ``exp(-(e / F)^2)``, ``e`` how far (in standard
+        deviations of the training split) the state's normalised features lie outside the range they had
+        there, so that g's correction fades where it was never trained and the priors alone move the bodies.
+    push_out : with ``actuation = "dynamics"``, move each simulated step's bodies out of the world's surfaces,
+        their twists kept (:func:`mdgs.actuation.push_out`; straight through inside ``unroll``, as the joints'
+        projection): a rigid tree's held corners stop at the acceleration level and sink a little at every
+        impact, never pushed back.
     Scales left at 1.0, ``control_dim``, ``contact``, ``dt`` and the sigmas are filled from the
     training split by :meth:`MDGS.resolve_config`.
     """
@@ -199,6 +209,7 @@ class MDGSConfig:
     loss: str = "mse"
     prior_input: bool = False
     fade: float = 0.0
+    push_out: bool = False
     noise: str = "auto"
     noise_sigma_x: float = -1.0
     noise_sigma_v: float = -1.0
@@ -261,6 +272,11 @@ class MDGSConfig:
         if self.prior_input and self.actuation == "none" and not self.gravity_prior:
             raise ValueError("prior_input = true needs a prior for g to read: set actuation (e.g. \"dynamics\") "
                              "or gravity_prior = true")
+        if not isinstance(self.push_out, bool):
+            raise ValueError(f"push_out must be true or false, got {self.push_out!r}")
+        if self.push_out and self.actuation != "dynamics":
+            raise ValueError("push_out moves the rigid tree out of the world's surfaces, which only the \"dynamics\" "
+                             "prior knows; set actuation = \"dynamics\" with it")
         if self.gravity_prior and self.actuation == "dynamics":
             raise ValueError("actuation = \"dynamics\" already adds gravity; set gravity_prior = false with it")
 
@@ -660,6 +676,10 @@ class MDGS(Simulator):
             out = out * torch.exp(-(e / c.fade) ** 2).view(B, 1, 1)
         x_next, v_next, pose = self._integrate(scene, x, v, out, priors)
         moving = scene.moving(dev)
+        if simulate and c.push_out:  # out of the world's surfaces, twists kept (before the joints, as the rigid tree)
+            x_next, v_next = push_out(x_next, v_next, self._drives, scene.ref_shape.to(dev), scene.obj.to(dev),
+                                      scene.n_obj, scene.mass.to(dev))
+            pose = None  # the structure's placement moved: the joints fit their own
         if simulate and c.joints and self._joints:  # on the structure's placement (pose), not a second fit
             x_next, v_next = project_joints(x_next, v_next, self._joints, scene.ref_shape.to(dev), scene.obj.to(dev),
                                             scene.n_obj, scene.mass.to(dev), pose)
@@ -699,10 +719,15 @@ class MDGS(Simulator):
             terms = [l_mse]
             x, v = p.x, p.v
             for k in range(cfg.unroll):
-                if cfg.joints and self._joints:  # the state a rollout step would hand on, straight through
-                    with torch.no_grad():  # (the Kabsch SVD's gradient is unbounded for symmetric bodies)
-                        xp, vp = project_joints(x, v, self._joints, scene.ref_shape.to(x.device),
-                                                scene.obj.to(x.device), scene.n_obj, scene.mass.to(x.device))
+                if (cfg.joints and self._joints) or cfg.push_out:  # the state a rollout step would hand on,
+                    with torch.no_grad():  # straight through (the Kabsch SVD's gradient is unbounded for symmetric bodies)
+                        xp, vp = x, v
+                        if cfg.push_out:
+                            xp, vp = push_out(xp, vp, self._drives, scene.ref_shape.to(x.device), scene.obj.to(x.device),
+                                              scene.n_obj, scene.mass.to(x.device))
+                        if cfg.joints and self._joints:
+                            xp, vp = project_joints(xp, vp, self._joints, scene.ref_shape.to(x.device),
+                                                    scene.obj.to(x.device), scene.n_obj, scene.mass.to(x.device))
                     x, v = x + (xp - x).detach(), v + (vp - v).detach()
                 c = batch.ctrl_future[:, k]
                 q = self(scene, x, v, self.node_controls(c), ctrl=c)

@@ -37,6 +37,7 @@ from mdgs.actuation import (
     coupled_motor_accelerations,
     drives_of,
     motor_accelerations,
+    push_out,
     warn_unseen,
 )
 from mdgs.data.split import SplitData
@@ -66,6 +67,8 @@ class ConstantTwistConfig:
         simulator of the scene's MJCF, without MuJoCo's contact model).
     trapezoidal : move each body over the frame with the mean of its old and new twist (exact for a
         constant acceleration) instead of the new one; the label gains ", trapezoidal".
+    push_out : with ``dynamics``, move the tree out of the world's surfaces after every step, its twists
+        kept (:func:`mdgs.actuation.push_out`); the label gains ", push-out".
     """
 
     motors: bool = False
@@ -73,9 +76,10 @@ class ConstantTwistConfig:
     coupled: bool = False
     dynamics: bool = False
     trapezoidal: bool = False
+    push_out: bool = False
 
     def __post_init__(self):
-        for k in ("motors", "joints", "coupled", "dynamics", "trapezoidal"):
+        for k in ("motors", "joints", "coupled", "dynamics", "trapezoidal", "push_out"):
             if not isinstance(getattr(self, k), bool):
                 raise ValueError(f"{k} must be true or false, got {getattr(self, k)!r}")
         if self.coupled and not self.motors:
@@ -83,6 +87,8 @@ class ConstantTwistConfig:
         if self.dynamics and (self.motors or self.coupled):
             raise ValueError("dynamics already holds the motors (the whole tree's response); "
                              "set motors = false and coupled = false with it")
+        if self.push_out and not self.dynamics:
+            raise ValueError("push_out moves the rigid tree out of the world's surfaces; set dynamics = true with it")
 
 
 class ConstantTwist(Simulator):
@@ -121,6 +127,8 @@ class ConstantTwist(Simulator):
             dvc, dw = project(acc * self._dt, x, tw, seg, sc.n_obj, mass)
             vc, w = vc + dvc, w + dw
         xn, vn = advance(x, tw, vc, w, self._dt, seg, trapezoidal=self.config.trapezoidal)
+        if self.config.push_out:  # out of the surfaces, twists kept
+            xn, vn = push_out(xn, vn, self._drives, sc.ref_shape.to(x.device), seg, sc.n_obj, mass)
         if self._joints:  # hinged bodies stay hinged (the projection of MDGS's simulated steps)
             xn, vn = project_joints(xn, vn, self._joints, sc.ref_shape.to(x.device), seg, sc.n_obj, mass)
         m = (~sc.static).to(x.device).view(1, -1, 1)

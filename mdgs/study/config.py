@@ -44,6 +44,8 @@ A study file has these tables (every key optional unless marked; defaults in the
                                         # tree with contact, friction and limits, one step per frame (mdgs.actuation)
     rigid_tree_trapezoidal = true       # also "rigid tree + joints, trapezoidal" (default false): the same moving
                                         # each body with the mean of its old and new twist
+    rigid_tree_push_out = true          # also "rigid tree + joints, trapezoidal, push-out" (default false): the
+                                        # trapezoidal tree moved out of the world's surfaces after every step
 
     [resolution]                        # MDGS error and cost against the element resolution
     model = "mdgs"                      # a registry name, or the label of a [[models]] row (its settings)
@@ -134,6 +136,7 @@ class StudyConfig:
     joint_twist: bool = False
     rigid_tree: bool = False
     rigid_tree_trapezoidal: bool = False
+    rigid_tree_push_out: bool = False
     resolution_model: str = "mdgs"
     resolution_label: str = "mdgs"
     resolution_settings: tuple[tuple[str, object], ...] = ()
@@ -295,12 +298,14 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
         raise StudyError(f"{f}: two [[models]] share a label; give each a distinct label")
 
     rf = _take(doc, "references", dict, f, {})
-    _unknown(rf, {"mujoco_dt_factors", "motors", "joints", "rigid_tree", "rigid_tree_trapezoidal"}, f"{f} [references]")
+    _unknown(rf, {"mujoco_dt_factors", "motors", "joints", "rigid_tree", "rigid_tree_trapezoidal",
+                  "rigid_tree_push_out"}, f"{f} [references]")
     dts = _ints(rf, "mujoco_dt_factors", f"{f} [references]", (1, 2, 5, 10, 20), lo=1)
     motors = _take(rf, "motors", bool, f"{f} [references]", False)
     joints = _take(rf, "joints", bool, f"{f} [references]", False)
     rigid_tree = _take(rf, "rigid_tree", bool, f"{f} [references]", False)
     rigid_trap = _take(rf, "rigid_tree_trapezoidal", bool, f"{f} [references]", False)
+    rigid_push = _take(rf, "rigid_tree_push_out", bool, f"{f} [references]", False)
 
     rs = _take(doc, "resolution", dict, f, {})
     where = f"{f} [resolution]"
@@ -319,5 +324,6 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
                        sensitivity=sens, sensitivity_seeds=sens_seeds, budget=budget, scenes=tuple(scenes),
                        models=tuple(models), mujoco_dt_factors=dts, motor_twist=motors, joint_twist=joints,
                        rigid_tree=rigid_tree, rigid_tree_trapezoidal=rigid_trap,
+                       rigid_tree_push_out=rigid_push,
                        resolution_model=rmodel, resolution_label=rlabel, resolution_settings=rsettings,
                        resolution_refine=refine, resolution_seeds=_ints(rs, "seeds", where, (0,)))
