@@ -80,7 +80,9 @@ CONTACT_COMPLIANCE = 1e-6
 #: surface at the frame's end under the trapezoidal step where the gap is more than half the frame's
 #: travel (benchmarks/mdgs_probes/speculative_contact.py; not a default: see its output).
 CONTACT_SPECULATIVE = False
-#: Passes of the active-set search that lets go of corners a surface would pull (and limits that would pull).
+#: Passes of the active-set search that lets go of corners a surface would pull (and limits that would pull),
+#: lets a sticking corner slide where its hold leaves the friction cone and sticks a sliding one whose
+#: friction would turn its slip round within the frame.
 CONTACT_PASSES = 4
 #: Points on each rim of a colliding cylinder that stand in for it as corners against curved or bounded
 #: surfaces (a 16-gon's rim is within 2 % of the radius of the circle's); against a plane a rim touches
@@ -106,8 +108,10 @@ SURFACE_KINDS = ("plane", "box", "sphere", "capsule", "cylinder")
 #: the rigid-tree references) add it to their revision (:meth:`mdgs.study.runner.Cell.spec`), so a rerun
 #: study measures them again and its tables keep only the newest lines. 0: world surfaces, rim support
 #: points and soft joint limits (the lines of the dynamics before them were moved aside by hand, into
-#: each study folder's ``superseded-before-limits.jsonl``).
-FORWARD_DYNAMICS_REVISION = 0
+#: each study folder's ``superseded-before-limits.jsonl``). 1: the friction cone and no reversed slip (a box
+#: landing flat on its face with a slight slip was thrown sideways at metres per second once a frame was short
+#: enough to call its corners sliding: the friction of the impact's push had no bound on what it did to the slip).
+FORWARD_DYNAMICS_REVISION = 1
 
 __all__ = ["FORWARD_DYNAMICS_REVISION", "Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
            "motor_accelerations", "coupled_motor_accelerations", "contacts", "push_out", "warn_unseen"]
@@ -969,7 +973,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     # unilateral candidates: corners against the world's surfaces, joints against their range limits;
     # each with three rows [B, k, 3, 6S] (two tangents, the normal), their right-hand sides [B, k, 3],
     # which rows are on [B, k, 3] and whether it is held [B, k]
-    cand_J, cand_C, cand_r, cand_on, cand_held, cand_R = [], [], [], [], [], []
+    cand_J, cand_C, cand_r, cand_on, cand_held, cand_R, cand_mu, cand_ut = [], [], [], [], [], [], [], []
     if dynamic and (len(drives.corner_obj) or len(drives.rim_obj)):
         ct = contacts(R, t, tw, drives, dt)
         arm = ct.P - xs[:, ct.obj]  # [B, C, 3]
@@ -994,6 +998,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         cand_on.append(torch.stack([~ct.slide, ~ct.slide, torch.ones_like(ct.slide)], -1))
         cand_held.append(ct.held)
         cand_R.append(torch.full(ct.held.shape + (3,), CONTACT_COMPLIANCE, dtype=f64, device=dev))
+        cand_mu.append(ct.mu)
+        cand_ut.append(ut)
     for lk in drives.links if dynamic else ():
         if lk.limit is None:
             continue
@@ -1025,10 +1031,14 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             cand_R.append(cR)
             cand_on.append(torch.tensor([False, False, True], device=dev).expand(B, 1, 3))
             cand_held.append(((h < lk.margin) | (h + dt * hd.clamp_max(0.0) < lk.margin)).unsqueeze(1))
+            cand_mu.append(torch.full((1,), torch.inf, dtype=f64, device=dev))
+            cand_ut.append(xd.new_zeros(B, 1, 2))
     contact = len(cand_J) > 0
     if contact:
         Jc, Cc, rc_ = torch.cat(cand_J, 1), torch.cat(cand_C, 1), torch.cat(cand_r, 1)
         rows_on, active, Rc = torch.cat(cand_on, 1), torch.cat(cand_held, 1), torch.cat(cand_R, 1)
+        mu_c = torch.cat(cand_mu)  # [C] friction of each candidate (a limit: none, inf)
+        ut_c = torch.cat(cand_ut, 1)  # [B, C, 2] each candidate's slip in its frame (a limit: zero)
     Jm = torch.cat(J, 1) if J else xd.new_zeros(B, 0, 6 * S)
     b0 = torch.cat(rhs, -1) if rhs else xd.new_zeros(B, 0)
     # compiled (torch.compile, a CUDA graph), every pass solves with a slot for every candidate and all
@@ -1060,7 +1070,31 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             break
         lz = sol[:, 6 * S + C0:].view(B, -1, 3)[..., 2]  # the push of each held candidate's surface is -lz
         pulls = torch.zeros_like(active).scatter(1, sel, (lz > 0) & (on.view(B, -1, 3)[..., 2] > 0))
-        if not static and not bool(pulls.any()):
+        # the friction cone: a sticking corner whose hold needs more tangential force than mu times its push
+        # slides, with friction mu |f_n| along that force; a sliding corner whose friction would turn its slip
+        # round within the frame sticks (limits have mu = inf: neither); only once no surface pulls (the forces of
+        # a system that still holds a corner its surface would pull are not the ones to judge friction by)
+        settled = ~pulls.any(-1, keepdim=True)  # [B, 1]
+        lam = sol[:, 6 * S + C0:].view(B, -1, 3)
+        lt = lam[..., :2]
+        mu_sel = mu_c[sel]  # [B, n_on]
+        on3 = on.view(B, -1, 3)
+        excess = settled & (on3[..., 0] > 0) & (lz < 0) & (lt.norm(dim=-1) > mu_sel * (-lz))
+        zt = (Jsel.view(B, -1, 3, 6 * S)[:, :, :2] @ sol[:, :6 * S].view(B, 1, 6 * S, 1)).squeeze(-1)  # [B, n_on, 2]
+        want_t = torch.gather(rc_, 1, sel.view(B, -1, 1).expand(-1, -1, 3))[..., :2]  # -c_t - u_t / dt
+        ut_sel = torch.gather(ut_c, 1, sel.unsqueeze(-1).expand(-1, -1, 2))
+        sliding = (on3[..., 2] > 0) & (on3[..., 0] == 0) & torch.isfinite(mu_sel)
+        turns = settled & sliding & (((zt - want_t) * ut_sel).sum(-1) < 0)  # dt (zt - want_t): the slip at the frame's end
+        slips = torch.zeros_like(active).scatter(1, sel, excess)
+        sticks = torch.zeros_like(active).scatter(1, sel, turns)
+        d = torch.zeros(B, active.shape[1], 2, dtype=f64, device=dev).scatter(
+            1, sel.unsqueeze(-1).expand(-1, -1, 2), lt / lt.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(f64).tiny))
+        fric = Jc[:, :, 2] - mu_c.clamp_max(1e9).view(1, -1, 1) * (d[..., :1] * Jc[:, :, 0] + d[..., 1:] * Jc[:, :, 1])
+        normal = torch.where(slips.view(B, -1, 1), fric, torch.where(sticks.view(B, -1, 1), Jc[:, :, 2], Cc[:, :, 2]))
+        Cc = torch.cat([Cc[:, :, :2], normal.unsqueeze(2)], 2)
+        tangents = torch.tensor([True, True, False], device=dev)
+        rows_on = (rows_on & ~(slips.unsqueeze(-1) & tangents)) | (sticks.unsqueeze(-1) & tangents)
+        if not static and not bool(pulls.any()) and not bool(slips.any()) and not bool(sticks.any()):
             break
         active = active & ~pulls
     z = sol[:, :6 * S].view(B, S, 6)

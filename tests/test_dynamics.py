@@ -200,22 +200,26 @@ def test_the_compiled_forward_dynamics_solves_with_static_shapes_and_gives_the_e
     np.testing.assert_allclose(b.x.numpy(), a.x.numpy(), rtol=0, atol=1e-5)  # float32 states, 20 frames
 
 
-@pytest.mark.parametrize(("trapezoidal", "prior_input", "push"), [(False, False, False), (True, False, False),
-                                                                 (True, True, False), (True, False, True)])
-def test_untrained_dynamics_mdgs_steps_as_the_rigid_tree_reference(tiny_cubli, trapezoidal, prior_input, push):
+@pytest.mark.parametrize(("trapezoidal", "prior_input", "push", "substeps"), [
+    (False, False, False, 1), (True, False, False, 1), (True, True, False, 1), (True, False, True, 1),
+    (True, True, True, 4), (False, False, False, 3)])
+def test_untrained_dynamics_mdgs_steps_as_the_rigid_tree_reference(tiny_cubli, trapezoidal, prior_input, push,
+                                                                   substeps):
     """``actuation="dynamics"`` untrained is the "rigid tree + joints" reference, with the trapezoidal
-    step as with the semi-implicit one, with g reading the prior's increment, and both pushed out of the
-    floor (1e-5 m over 10 steps: float32 against float64)."""
+    step as with the semi-implicit one, with g reading the prior's increment, both pushed out of the
+    floor, and both in substeps (1e-5 m over 10 steps: float32 against float64)."""
     from mdgs.evaluate import reference_label
 
     tr, te = load_split(tiny_cubli / "train.h5"), load_split(tiny_cubli / "test.h5")
     b = batch_of(te, te.pairs(0)[:4], "cpu")
     ct = MODELS["constant-twist"]
-    ref = ct.from_data(te, ct.Config(dynamics=True, joints=True, trapezoidal=trapezoidal, push_out=push))
+    ref = ct.from_data(te, ct.Config(dynamics=True, joints=True, trapezoidal=trapezoidal, push_out=push,
+                                     substeps=substeps))
     assert reference_label(ref) == ("rigid tree + joints" + (", trapezoidal" if trapezoidal else "")
-                                    + (", push-out" if push else ""))
+                                    + (", push-out" if push else "") + (f", {substeps} substeps" if substeps > 1 else ""))
     net = MODELS["mdgs"].from_data(tr, MODELS["mdgs"].Config(actuation="dynamics", trapezoidal=trapezoidal,
-                                                              prior_input=prior_input, push_out=push))
+                                                              prior_input=prior_input, push_out=push,
+                                                              prior_substeps=substeps))
     traj = {}
     for name, sim in (("ref", ref), ("mdgs", net)):
         sim.bind(te)
@@ -284,6 +288,8 @@ def test_gravity_prior_with_the_dynamics_prior_is_refused():
 
 
 def test_the_rigid_tree_is_a_reference_of_mdgs_evaluate_and_does_not_take_the_motors_twice():
+    import typer
+
     from mdgs.cli.evaluate import _parse_reference
 
     assert _parse_reference("constant-twist:dynamics+joints") == ("constant-twist", {"dynamics": True, "joints": True})
@@ -291,6 +297,15 @@ def test_the_rigid_tree_is_a_reference_of_mdgs_evaluate_and_does_not_take_the_mo
                                                                                "trapezoidal": True}
     assert _parse_reference("constant-twist:dynamics+joints+trapezoidal+push-out")[1] == {
         "dynamics": True, "joints": True, "trapezoidal": True, "push_out": True}
+    assert _parse_reference("constant-twist:dynamics+joints+substeps=4")[1] == {"dynamics": True, "joints": True,
+                                                                                "substeps": 4}
+    for bad in ("constant-twist:joints+substeps=4", "constant-twist:dynamics+substeps=0", "constant-twist:dynamics+substeps=x"):
+        with pytest.raises(typer.Exit):
+            _parse_reference(bad)
+    with pytest.raises(ValueError, match="substeps"):
+        MODELS["mdgs"].Config(prior_substeps=4)  # without the dynamics prior
+    with pytest.raises(ValueError, match="substeps"):
+        MODELS["constant-twist"].Config(substeps=2)
     ct = MODELS["constant-twist"]
     with pytest.raises(ValueError, match="already holds the motors"):
         ct.Config(dynamics=True, motors=True)

@@ -156,6 +156,14 @@ def test_rigid_tree_reference_is_one_more_cell_per_scene_and_earlier_cells_keep_
     assert [(c.label, dict(c.settings)) for c in last] == [("rigid tree + joints, trapezoidal, push-out", {
         "dynamics": True, "joints": True, "push_out": True, "trapezoidal": True})]
     assert reference_label(ct(ct.Config(**dict(last[0].settings)))) == last[0].label
+    sub = load_study(_write(tmp_path, GOOD + "[references]\nmotors = true\njoints = true\nrigid_tree = true\n"
+                                             "rigid_tree_trapezoidal = true\nrigid_tree_push_out = true\n"
+                                             "rigid_tree_substeps = [4]\n"))
+    four = [c for c in cells_of(sub) if c.key(sub) not in {k.key(pushed) for k in cells_of(pushed)}]
+    assert [c.label for c in four] == ["rigid tree + joints, trapezoidal, push-out, 4 substeps"]
+    assert reference_label(ct(ct.Config(**dict(four[0].settings)))) == four[0].label
+    with pytest.raises(StudyError, match="rigid_tree_substeps"):
+        load_study(_write(tmp_path, GOOD + "[references]\nrigid_tree_substeps = [1]\n"))
 
 
 def _changes_only_learned_keys(tmp_path, text: str, line: str, name: str):

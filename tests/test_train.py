@@ -230,7 +230,7 @@ def test_unroll_scores_every_step_of_the_models_own_rollout_with_gradient_throug
     assert not torch.allclose(g_full, g_cut, rtol=1e-3, atol=0), "no gradient through the earlier steps"
 
 
-@pytest.mark.parametrize("prior", ["motors", "dynamics pushed out"])
+@pytest.mark.parametrize("prior", ["motors", "dynamics pushed out", "dynamics in substeps"])
 def test_unrolled_training_has_finite_gradients_on_symmetric_bodies_with_motors(tmp_path, prior):
     """The user scene (a hinged arm with a motor, a slider, a free box: bodies whose elements are
     symmetric, so the Kabsch SVD's singular values repeat): an unrolled training pass with the motor
@@ -245,7 +245,8 @@ def test_unrolled_training_has_finite_gradients_on_symmetric_bodies_with_motors(
     d = load_split(tmp_path / "hsf" / "train.h5")
     cls = MODELS["mdgs"]
     torch.manual_seed(0)
-    kw = dict(actuation="prior") if prior == "motors" else dict(actuation="dynamics", push_out=True, trapezoidal=True)
+    kw = (dict(actuation="prior") if prior == "motors" else dict(actuation="dynamics", push_out=True, trapezoidal=True)
+          | ({"prior_substeps": 2, "loss": "relative", "prior_input": True} if prior == "dynamics in substeps" else {}))
     model = cls.from_data(d, cls.resolve_config(ModelConfig(unroll=3, **kw), d))
     model.bind(d)
     pairs = d.pairs(0, 3)

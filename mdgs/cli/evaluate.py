@@ -22,6 +22,14 @@ def _parse_reference(text: str) -> tuple[str, dict]:
         return name, {"dt_factor": k}
     if name == "constant-twist" and arg:
         parts = arg.split("+")
+        sub = [p for p in parts if p.startswith("substeps=")]
+        parts = [p for p in parts if not p.startswith("substeps=")]
+        n = 1
+        if sub:
+            if len(sub) > 1 or not sub[0][9:].isdigit() or int(sub[0][9:]) < 1 or "dynamics" not in parts:
+                fail(f"--reference {text}: write substeps=N once, N a positive integer, with dynamics "
+                     f"(e.g. constant-twist:dynamics+joints+trapezoidal+substeps=4)")
+            n = int(sub[0][9:])
         if not set(parts) <= {"motors", "joints", "coupled", "dynamics", "trapezoidal", "push-out"} or len(set(parts)) != len(parts):
             fail(f"--reference {text}: constant-twist takes motors, joints or motors+joints, coupled "
                  f"with motors, or dynamics (e.g. constant-twist:motors+joints, constant-twist:motors+coupled+joints, "
@@ -33,7 +41,7 @@ def _parse_reference(text: str) -> tuple[str, dict]:
             fail(f"--reference {text}: dynamics already holds the motors; write dynamics or dynamics+joints")
         if "push-out" in parts and "dynamics" not in parts:
             fail(f"--reference {text}: push-out moves the rigid tree out of the surfaces; write dynamics+push-out")
-        return name, {k.replace("-", "_"): True for k in parts}
+        return name, {k.replace("-", "_"): True for k in parts} | ({"substeps": n} if n > 1 else {})
     if arg:
         fail(f"--reference {text}: {name} takes no setting")
     return name, {}

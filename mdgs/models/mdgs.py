@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -54,6 +55,7 @@ from mdgs.models.integrators import INTEGRATORS
 from mdgs.models.layers import GCN
 from mdgs.rigid import advance, perturb, project, twist
 from mdgs.structure import align_with_pose
+from mdgs.tree import tree_step
 
 __all__ = ["MDGSConfig", "ModelConfig", "VARIANTS", "Prediction", "MDGS", "MDGSNoConstraint",
            "MDGSSingleSpeed", "noise_sigmas", "CUBLI_NOISE", "INCREMENT_NOISE"]
@@ -177,6 +179,13 @@ class MDGSConfig:
         their twists kept (:func:`mdgs.actuation.push_out`; straight through inside ``unroll``, as the joints'
         projection): a rigid tree's held corners stop at the acceleration level and sink a little at every
         impact, never pushed back.
+    prior_substeps : with ``actuation = "dynamics"`` and the "rigid" integrator, 1 (the prior is the tree's
+        velocity change over the frame, which g's output joins before the frame's one rigid step) or N > 1: the
+        prior is the rigid tree's own state after the frame in N substeps (:func:`mdgs.tree.tree_step`, with
+        ``trapezoidal``, ``push_out`` and the joints as set here), and g's output corrects that state: its
+        velocity part changes each object's twist, moving it by the change times dt/2 (trapezoidal) or dt,
+        its position part moves it rigidly. Untrained, MDGS is then the "rigid tree + joints, N substeps"
+        reference.
     Scales left at 1.0, ``control_dim``, ``contact``, ``dt`` and the sigmas are filled from the
     training split by :meth:`MDGS.resolve_config`.
     """
@@ -210,6 +219,7 @@ class MDGSConfig:
     prior_input: bool = False
     fade: float = 0.0
     push_out: bool = False
+    prior_substeps: int = 1
     noise: str = "auto"
     noise_sigma_x: float = -1.0
     noise_sigma_v: float = -1.0
@@ -277,6 +287,11 @@ class MDGSConfig:
         if self.push_out and self.actuation != "dynamics":
             raise ValueError("push_out moves the rigid tree out of the world's surfaces, which only the \"dynamics\" "
                              "prior knows; set actuation = \"dynamics\" with it")
+        if isinstance(self.prior_substeps, bool) or not isinstance(self.prior_substeps, int) or self.prior_substeps < 1:
+            raise ValueError(f"prior_substeps must be a positive integer, got {self.prior_substeps!r}")
+        if self.prior_substeps > 1 and (self.actuation != "dynamics" or self.integrator != "rigid"):
+            raise ValueError("prior_substeps > 1 steps the rigid tree of the \"dynamics\" prior, whose end state the "
+                             "\"rigid\" integrator corrects; set actuation = \"dynamics\" and integrator = \"rigid\"")
         if self.gravity_prior and self.actuation == "dynamics":
             raise ValueError("actuation = \"dynamics\" already adds gravity; set gravity_prior = false with it")
 
@@ -294,6 +309,19 @@ ModelConfig = MDGSConfig
 
 #: Static node properties k_i: mass, volume, tau, object type one-hot (3).
 N_PROPERTIES = 6
+
+
+class PriorState(NamedTuple):
+    """The rigid tree's node positions and velocities [B, N, 3] after the frame (``prior_substeps`` > 1): a prior
+    that g's output corrects instead of joining (:meth:`MDGS._integrate`)."""
+
+    x: torch.Tensor
+    v: torch.Tensor
+
+
+def _increment(priors: list, v: torch.Tensor) -> torch.Tensor:
+    """The priors' node velocity increment over the frame [B, N, 3] (a :class:`PriorState`'s: its velocities less ``v``)."""
+    return sum(p.v - v.detach() if isinstance(p, PriorState) else p for p in priors)
 
 
 @dataclass
@@ -669,7 +697,7 @@ class MDGS(Simulator):
         g_in = [z, lam * f]
         if c.prior_input:  # what the priors do this frame, in g's own velocity units
             sv = self.scales(scene, dev)[1]
-            g_in.append((sum(priors) / sv).expand(B, N, 3).to(z.dtype) if priors else torch.zeros_like(f))
+            g_in.append((_increment(priors, v) / sv).expand(B, N, 3).to(z.dtype) if priors else torch.zeros_like(f))
         out = self.state(obj_prop, torch.cat(g_in, -1))  # Eqs. (8)-(9)
         if c.fade:  # fade g's correction where the state leaves the training data's range
             e = torch.maximum(z - self.z_hi, self.z_lo - z).clamp_min(0.0).amax(dim=(-2, -1))  # [B]
@@ -759,7 +787,13 @@ class MDGS(Simulator):
         c = self.config
         dev = x.device
         priors = []
-        if c.actuation == "dynamics" and ctrl is not None:  # the whole tree's forward dynamics over dt
+        if c.actuation == "dynamics" and ctrl is not None and c.prior_substeps > 1:  # the tree's state after dt
+            seg, mass, ref = scene.obj.to(dev), scene.mass.to(dev), scene.ref_shape.to(dev)
+            xp, vp = tree_step(x.detach(), v.detach(), ctrl, self._drives, ref, seg, scene.n_obj, mass, c.dt,
+                               c.prior_substeps, c.trapezoidal, c.push_out, self._joints if c.joints else None)
+            m = scene.moving(dev).view(1, -1, 1)
+            priors.append(PriorState(torch.where(m, xp, x.detach()), torch.where(m, vp, torch.zeros_like(vp))))
+        elif c.actuation == "dynamics" and ctrl is not None:  # the whole tree's forward dynamics over dt
             seg, mass = scene.obj.to(dev), scene.mass.to(dev)
             priors.append(c.dt * coupled_motor_accelerations(x.detach(), ctrl, self._drives, scene.ref_shape.to(dev),
                                                              seg, scene.n_obj, v=v.detach(), mass=mass, dt=c.dt))
@@ -785,7 +819,15 @@ class MDGS(Simulator):
         dev = x.device
         sx, sv = self.scales(scene, dev)
         svc, sw = self.twist_scales(scene, dev)
-        if priors and c.integrator == "twist":  # g reads twist increments: add the priors' rigid part
+        if priors and isinstance(priors[0], PriorState):  # g corrects the rigid tree's state after the frame
+            seg, mass = scene.obj.to(dev), scene.mass.to(dev)
+            xp, vp = priors[0]
+            tw = twist(xp, vp, seg, scene.n_obj, mass)
+            dvc, dw = project(sv * out[..., 3:], xp, tw, seg, scene.n_obj, mass)
+            dc, dth = project(sx * out[..., :3], xp, tw, seg, scene.n_obj, mass)
+            h = c.dt / 2 if c.trapezoidal else c.dt  # a twist change over the frame moves the body by h times it
+            x1, v1 = advance(xp, tw, tw.vc + dvc, tw.omega + dw, 0.0, seg, dc + h * dvc, dth + h * dw)
+        elif priors and c.integrator == "twist":  # g reads twist increments: add the priors' rigid part
             seg, mass = scene.obj.to(dev), scene.mass.to(dev)
             tw = twist(x.detach(), v.detach(), seg, scene.n_obj, mass)
             dvc_p, dw_p = project(sum(priors).expand_as(x), x.detach(), tw, seg, scene.n_obj, mass)  # [B, S, 3]
@@ -793,8 +835,9 @@ class MDGS(Simulator):
         elif priors:
             for p in priors:  # one at a time, as before the twist integrator took them
                 out = out + torch.cat([torch.zeros_like(p), p / sv], -1)
-        x1, v1 = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx, dv_scale=sv, trapezoidal=c.trapezoidal,
-                                           dvc_scale=svc, dw_scale=sw)
+        if not (priors and isinstance(priors[0], PriorState)):
+            x1, v1 = INTEGRATORS[c.integrator](x, v, out, scene, dt=c.dt, dx_scale=sx, dv_scale=sv,
+                                               trapezoidal=c.trapezoidal, dvc_scale=svc, dw_scale=sw)
         pose = None
         if c.structure:
             x1, *pose = align_with_pose(x1, scene.ref_shape.to(dev), scene.obj.to(dev), scene.n_obj,

@@ -37,7 +37,6 @@ from mdgs.actuation import (
     coupled_motor_accelerations,
     drives_of,
     motor_accelerations,
-    push_out,
     warn_unseen,
 )
 from mdgs.data.split import SplitData
@@ -45,6 +44,7 @@ from mdgs.graphs import SceneGraph
 from mdgs.joints import JointSet, joints_of, project_joints
 from mdgs.models.base import ModelError, Simulator, State
 from mdgs.rigid import advance, project, twist
+from mdgs.tree import tree_step
 
 __all__ = ["ConstantTwist", "ConstantTwistConfig", "MuJoCoReference", "MuJoCoConfig"]
 
@@ -69,6 +69,8 @@ class ConstantTwistConfig:
         constant acceleration) instead of the new one; the label gains ", trapezoidal".
     push_out : with ``dynamics``, move the tree out of the world's surfaces after every step, its twists
         kept (:func:`mdgs.actuation.push_out`); the label gains ", push-out".
+    substeps : with ``dynamics``, integrate the frame in this many equal substeps (:func:`mdgs.tree.tree_step`;
+        the controls held); above 1 the label gains ", N substeps".
     """
 
     motors: bool = False
@@ -77,6 +79,7 @@ class ConstantTwistConfig:
     dynamics: bool = False
     trapezoidal: bool = False
     push_out: bool = False
+    substeps: int = 1
 
     def __post_init__(self):
         for k in ("motors", "joints", "coupled", "dynamics", "trapezoidal", "push_out"):
@@ -89,6 +92,10 @@ class ConstantTwistConfig:
                              "set motors = false and coupled = false with it")
         if self.push_out and not self.dynamics:
             raise ValueError("push_out moves the rigid tree out of the world's surfaces; set dynamics = true with it")
+        if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) or self.substeps < 1:
+            raise ValueError(f"substeps must be a positive integer, got {self.substeps!r}")
+        if self.substeps > 1 and not self.dynamics:
+            raise ValueError("substeps integrate the rigid tree's forward dynamics; set dynamics = true with them")
 
 
 class ConstantTwist(Simulator):
@@ -114,24 +121,22 @@ class ConstantTwist(Simulator):
     def step(self, state: State, ctrl: torch.Tensor) -> State:
         x, v = state.x, state.v
         sc = self._scene
-        seg, mass = sc.obj.to(x.device), sc.mass.to(x.device)
+        seg, mass, ref = sc.obj.to(x.device), sc.mass.to(x.device), sc.ref_shape.to(x.device)
+        m = (~sc.static).to(x.device).view(1, -1, 1)
+        if self.config.dynamics:  # the whole tree's forward dynamics, in substeps (mdgs.tree)
+            xn, vn = tree_step(x, v, ctrl, self._drives, ref, seg, sc.n_obj, mass, self._dt, self.config.substeps,
+                               self.config.trapezoidal, self.config.push_out, self._joints)
+            return State(torch.where(m, xn, x), torch.where(m, vn, torch.zeros_like(vn)))
         tw = twist(x, v, seg, sc.n_obj, mass)
         vc, w = tw.vc, tw.omega
-        if self.config.dynamics or self._drives:  # + the forces' velocity change over the frame
-            if self.config.dynamics:  # the whole tree's forward dynamics
-                acc = coupled_motor_accelerations(x, ctrl, self._drives, sc.ref_shape.to(x.device), seg, sc.n_obj,
-                                                  v=v, mass=mass, dt=self._dt)
-            else:  # the motors' response (parents held, or the whole tree's)
-                response = coupled_motor_accelerations if self.config.coupled else motor_accelerations
-                acc = response(x, ctrl, self._drives, sc.ref_shape.to(x.device), seg, sc.n_obj)
+        if self._drives:  # + the motors' velocity change over the frame (parents held, or the whole tree's)
+            response = coupled_motor_accelerations if self.config.coupled else motor_accelerations
+            acc = response(x, ctrl, self._drives, ref, seg, sc.n_obj)
             dvc, dw = project(acc * self._dt, x, tw, seg, sc.n_obj, mass)
             vc, w = vc + dvc, w + dw
         xn, vn = advance(x, tw, vc, w, self._dt, seg, trapezoidal=self.config.trapezoidal)
-        if self.config.push_out:  # out of the surfaces, twists kept
-            xn, vn = push_out(xn, vn, self._drives, sc.ref_shape.to(x.device), seg, sc.n_obj, mass)
         if self._joints:  # hinged bodies stay hinged (the projection of MDGS's simulated steps)
-            xn, vn = project_joints(xn, vn, self._joints, sc.ref_shape.to(x.device), seg, sc.n_obj, mass)
-        m = (~sc.static).to(x.device).view(1, -1, 1)
+            xn, vn = project_joints(xn, vn, self._joints, ref, seg, sc.n_obj, mass)
         return State(torch.where(m, xn, x), torch.where(m, vn, torch.zeros_like(vn)))
 
 

@@ -46,6 +46,7 @@ A study file has these tables (every key optional unless marked; defaults in the
                                         # each body with the mean of its old and new twist
     rigid_tree_push_out = true          # also "rigid tree + joints, trapezoidal, push-out" (default false): the
                                         # trapezoidal tree moved out of the world's surfaces after every step
+    rigid_tree_substeps = [4]           # also the last rigid tree row in N substeps a frame, for each N (default [])
 
     [resolution]                        # MDGS error and cost against the element resolution
     model = "mdgs"                      # a registry name, or the label of a [[models]] row (its settings)
@@ -137,6 +138,7 @@ class StudyConfig:
     rigid_tree: bool = False
     rigid_tree_trapezoidal: bool = False
     rigid_tree_push_out: bool = False
+    rigid_tree_substeps: tuple[int, ...] = ()
     resolution_model: str = "mdgs"
     resolution_label: str = "mdgs"
     resolution_settings: tuple[tuple[str, object], ...] = ()
@@ -299,13 +301,16 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
 
     rf = _take(doc, "references", dict, f, {})
     _unknown(rf, {"mujoco_dt_factors", "motors", "joints", "rigid_tree", "rigid_tree_trapezoidal",
-                  "rigid_tree_push_out"}, f"{f} [references]")
+                  "rigid_tree_push_out", "rigid_tree_substeps"}, f"{f} [references]")
     dts = _ints(rf, "mujoco_dt_factors", f"{f} [references]", (1, 2, 5, 10, 20), lo=1)
     motors = _take(rf, "motors", bool, f"{f} [references]", False)
     joints = _take(rf, "joints", bool, f"{f} [references]", False)
     rigid_tree = _take(rf, "rigid_tree", bool, f"{f} [references]", False)
     rigid_trap = _take(rf, "rigid_tree_trapezoidal", bool, f"{f} [references]", False)
     rigid_push = _take(rf, "rigid_tree_push_out", bool, f"{f} [references]", False)
+    rigid_sub = _ints(rf, "rigid_tree_substeps", f"{f} [references]", (), lo=2)
+    if rigid_sub and not rigid_tree:
+        raise StudyError(f"{f} [references]: rigid_tree_substeps steps the rigid tree; set rigid_tree = true with it")
 
     rs = _take(doc, "resolution", dict, f, {})
     where = f"{f} [resolution]"
@@ -324,6 +329,6 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
                        sensitivity=sens, sensitivity_seeds=sens_seeds, budget=budget, scenes=tuple(scenes),
                        models=tuple(models), mujoco_dt_factors=dts, motor_twist=motors, joint_twist=joints,
                        rigid_tree=rigid_tree, rigid_tree_trapezoidal=rigid_trap,
-                       rigid_tree_push_out=rigid_push,
+                       rigid_tree_push_out=rigid_push, rigid_tree_substeps=rigid_sub,
                        resolution_model=rmodel, resolution_label=rlabel, resolution_settings=rsettings,
                        resolution_refine=refine, resolution_seeds=_ints(rs, "seeds", where, (0,)))

@@ -154,6 +154,10 @@ def _reference_cells(study: StudyConfig, sc: SceneEntry, refine: int = 1) -> lis
     if study.rigid_tree_push_out:
         specs.append(("constant-twist", "rigid tree + joints, trapezoidal, push-out",
                       (("dynamics", True), ("joints", True), ("push_out", True), ("trapezoidal", True))))
+    if study.rigid_tree_substeps:  # the last rigid tree row in N substeps a frame
+        _, last, settings = specs[-1]
+        specs += [("constant-twist", f"{last}, {n} substeps", tuple(sorted(settings + (("substeps", n),))))
+                  for n in study.rigid_tree_substeps]
     specs += [("mujoco", f"mujoco dt x{k}", (("dt_factor", k),)) for k in study.mujoco_dt_factors]
     return [Cell("reference", sc, model, label + tail, settings, refine=refine) for model, label, settings in specs]
 

@@ -1,0 +1,46 @@
+"""The rigid tree stepped over a frame: the forward dynamics of :mod:`mdgs.actuation` integrated in substeps.
+
+One substep of length ``h = dt / n`` from node positions and velocities ``x, v`` [B, N, 3]: every object's
+twist (:func:`mdgs.rigid.twist`) changes by the rigid part of the whole tree's accelerations times ``h``
+(:func:`mdgs.actuation.coupled_motor_accelerations` given the velocities, ``h`` as its frame), the objects
+move rigidly by the new twist or, ``trapezoidal``, by the mean of the old and the new one
+(:func:`mdgs.rigid.advance`); then, optionally, out of the world's surfaces (:func:`mdgs.actuation.push_out`)
+and onto the joints (:func:`mdgs.joints.project_joints`). The controls are held over the frame, as MuJoCo
+holds them over its steps. It is the "rigid tree" reference of :mod:`mdgs.models.references` and, with
+``prior_substeps``, the state MDGS's "dynamics" prior hands its network to correct
+(:class:`mdgs.models.mdgs.MDGSConfig`). A fast rotor turns a radian or more in a 10 ms frame; one step per
+frame then gains energy where a few do not (docs/mdgs-experiments.md, "Substeps and friction").
+"""
+
+from __future__ import annotations
+
+import torch
+
+from mdgs.actuation import DriveSet, coupled_motor_accelerations, push_out
+from mdgs.joints import JointSet, project_joints
+from mdgs.rigid import advance, project, twist
+
+__all__ = ["tree_step"]
+
+
+def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
+              seg: torch.Tensor, n_obj: int, mass: torch.Tensor, dt: float, substeps: int = 1,
+              trapezoidal: bool = False, pushed_out: bool = False,
+              joints: JointSet | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """``x', v'`` [B, N, 3] of the rigid tree after ``dt`` in ``substeps`` equal substeps (module docstring).
+
+    ``ctrl`` [B, nu]; ``ref`` [N, 3] the nodes in their bodies' frames (:attr:`mdgs.graphs.SceneGraph.ref_shape`),
+    ``seg`` [N] their objects, ``mass`` [N]; ``pushed_out``: out of the surfaces after every substep;
+    ``joints``: projected onto them after every substep. Static nodes are moved like any other: the
+    caller keeps them in place."""
+    h = dt / substeps
+    for _ in range(substeps):
+        tw = twist(x, v, seg, n_obj, mass)
+        acc = coupled_motor_accelerations(x, ctrl, drives, ref, seg, n_obj, v=v, mass=mass, dt=h)
+        dvc, dw = project(acc * h, x, tw, seg, n_obj, mass)
+        x, v = advance(x, tw, tw.vc + dvc, tw.omega + dw, h, seg, trapezoidal=trapezoidal)
+        if pushed_out:
+            x, v = push_out(x, v, drives, ref, seg, n_obj, mass)
+        if joints:
+            x, v = project_joints(x, v, joints, ref, seg, n_obj, mass)
+    return x, v
