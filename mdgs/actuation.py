@@ -911,7 +911,11 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     tangents and the surface's normal) holding its acceleration at ``-w x (w x r) - u / dt`` (``u`` its
     velocity: an inelastic, sticking impact over one frame); faster, it slides: only the normal row is
     held and the surface's push ``f_n`` comes with Coulomb friction ``mu f_n`` against the slip (the
-    row's column in the upper right of the system carries it, so the system is not symmetric). The rows
+    row's column in the upper right of the system carries it, so the system is not symmetric). These are
+    first guesses that the active-set passes correct (the friction cone): a sticking corner whose hold
+    takes more tangential force than ``mu`` times its push slides, with friction ``mu f_n`` along that
+    force, and a sliding corner whose friction would turn its slip round within the frame sticks (an
+    impact's push is large; its friction may stop a slip, not reverse it). The rows
     have a compliance of ``CONTACT_COMPLIANCE`` so that four corners of a face (twelve rows for six
     degrees of freedom) share the load in the least-squares way (the held candidates of a batch are
     gathered into as many slots as its most held).
@@ -927,8 +931,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     candidate has a slot and all passes run, so that no shape follows the state: the same multipliers
     (tests/test_dynamics.py), one graph, dearer in batches (benchmarks/compiled_dynamics.py).
 
-    Not modelled: the friction cone of a sticking corner (it holds whatever tangential force sticking
-    takes), rolling and torsional friction, the softness of MuJoCo's contacts (tried, worse at one step
+    Not modelled: the cone's exact boundary (a corner sticks or slides, each pass deciding from the last
+    pass's forces; ``CONTACT_PASSES`` bounds the search), rolling and torsional friction, the softness of MuJoCo's contacts (tried, worse at one step
     per frame: docs/mdgs-experiments.md), limits of ball joints, damping, springs and friction loss, and
     contact between moving bodies or with other geoms: ``drives.unseen`` names what a scene has of these, and the rigid tree and MDGS's
     "dynamics" prior warn with it when bound (:func:`warn_unseen`).

@@ -436,6 +436,34 @@ def test_a_box_sliding_down_a_tilted_plane_accelerates_at_g_sin_minus_mu_g_cos()
     np.testing.assert_allclose(alpha, 0, atol=1e-3)
 
 
+
+@pytest.mark.parametrize(("theta", "mu"), [(0.5, 0.3), (0.2, 0.5)])
+def test_a_box_at_rest_on_a_ramp_slides_where_the_friction_cone_cannot_hold_it_and_rests_where_it_can(theta, mu):
+    """At rest flat on a plane tilted by theta, the box slides down at g (sin theta - mu cos theta) where the slope
+    is steeper than the friction angle (tan 0.5 = 0.55 > mu = 0.3: holding it would take more than mu times the
+    push) and stays at rest where it is not (tan 0.2 = 0.20 < 0.5). The rule before the friction cone held any
+    corner that slipped slower than mu |g| dt, so the first box stuck."""
+    R = _rot_x(theta)
+    down, normal = R @ np.array([0, -1.0, 0]), R @ np.array([0, 0, 1.0])
+    _, a, alpha, _ = _box_acc(R, H * normal, xml=_ramp(theta, mu))
+    expect = max(G * (np.sin(theta) - mu * np.cos(theta)), 0.0)
+    np.testing.assert_allclose(a, expect * down, atol=1e-4 * G)
+    np.testing.assert_allclose(alpha, 0, atol=1e-3)
+
+
+def test_a_box_landing_flat_with_a_slight_slip_is_not_thrown_sideways_by_its_friction():
+    """Falling flat onto the floor at 3 m/s with a slip of 6 cm/s, over a frame of 2.5 ms (short enough that the
+    corners count as sliding, 6 cm/s > mu g dt = 2.5 cm/s): the impact stops the fall and friction stops the
+    slip without turning it round (the rule before gave the box 3 m/s sideways: mu times the push of an
+    impact that stops 3 m/s, applied along the slip with no bound)."""
+    dt = 0.0025
+    slip = np.array([-0.036, -0.048, 0.0])
+    _, a, alpha, _ = _box_acc(np.eye(3), np.array([0, 0, H + 0.001]), vc=slip + np.array([0, 0, -3.0]), dt=dt)
+    v_end = slip + np.array([0, 0, -3.0]) + a * dt
+    assert abs(v_end[2]) < 1e-5  # the fall is stopped (to the rows' compliance: 1e-6 per N, 600 N a corner)
+    assert np.linalg.norm(v_end[:2]) < 1e-5  # friction stops the slip (it can: the push is large), no more
+    np.testing.assert_allclose(alpha, 0, atol=0.1)  # barely turned: 0.1 rad/s^2 over the frame is 2.5e-4 rad/s
+
 WALL = f"""<mujoco model="wall"><option gravity="0 0 -9.81"/><worldbody>
   <geom name="floor" type="plane" size="5 5 0.1"/>
   <geom name="wall" type="box" size="0.1 1 0.5" pos="{H + 0.1} 0 0.5"/>
