@@ -20,7 +20,7 @@ PKGS = ("kane", "validation", "mdgs")
 STAGES = (
     ("mdgs.scenes", "mdgs.partition"),
     ("mdgs.data",),
-    ("mdgs.graphs", "mdgs.structure", "mdgs.rigid", "mdgs.joints", "mdgs.actuation", "mdgs.losses"),
+    ("mdgs.graphs", "mdgs.structure", "mdgs.rigid", "mdgs.joints", "mdgs.actuation", "mdgs.tree", "mdgs.losses"),
     ("mdgs.models",),
     ("mdgs.runs",),
     ("mdgs.train", "mdgs.evaluate"),
