@@ -69,7 +69,9 @@ def evaluate_cmd(
                                              "(projected onto the joints, as MDGS), constant-twist:motors+joints, or with "
                                              "+coupled the motors' response of the whole tree (parents recoiling), "
                                              "constant-twist:dynamics+joints (the rigid tree: the MJCF's forward dynamics "
-                                             "with contact and limits, one step per frame); "
+                                             "with contact and limits, one step per frame; append "
+                                             "+trapezoidal, +push-out or +substeps=N, e.g. "
+                                             "constant-twist:dynamics+joints+trapezoidal+push-out+substeps=4); "
                                              "repeatable. constant-twist "
                                              "is always included."),
     device: str = typer.Option("auto", "--device", help="auto (CUDA when present), cpu or cuda."),
