@@ -75,7 +75,20 @@ def _legend_below(fig, handles: dict, ncol: int, panels_height: float) -> None:
 #: Markers of the non-learned references other than MuJoCo (grey), so each can be told apart.
 _REF_MARKERS = {"constant twist": "s", "constant twist + joints": "D", "constant twist + motors": "^",
                 "constant twist + motors + joints": "v", "rigid tree + joints": "P",
-                "rigid tree + joints, trapezoidal": "X"}
+                "rigid tree + joints, trapezoidal": "X", "rigid tree + joints, trapezoidal, push-out": "h",
+                "rigid tree + joints, trapezoidal, push-out, 4 substeps": "*"}
+#: Markers for references not named above, handed out in the order the labels are first drawn.
+_MORE_MARKERS = ("p", "d", "<", ">", "8", "H", "1", "2")
+
+
+def _ref_marker(label: str, _seen: dict = {}) -> str:  # noqa: B006 (the cache is the point)
+    """A reference's marker: its own from ``_REF_MARKERS``, else the next of ``_MORE_MARKERS`` (the same for a
+    label every time it is drawn)."""
+    if label in _REF_MARKERS:
+        return _REF_MARKERS[label]
+    if label not in _seen:
+        _seen[label] = _MORE_MARKERS[len(_seen) % len(_MORE_MARKERS)]
+    return _seen[label]
 
 
 def _eager_rows(lines, scene) -> set[str]:
@@ -126,7 +139,7 @@ def speed_accuracy(lines, path: Path) -> None:
             if lbl.startswith("mujoco dt x"):
                 continue
             if kind == "reference":
-                (h,) = ax.plot([c], [y(e)], _REF_MARKERS.get(lbl, "s"), color="0.6", ms=6)
+                (h,) = ax.plot([c], [y(e)], _ref_marker(lbl), color="0.6", ms=6)
                 handles.setdefault(lbl, h)
                 continue
             col = colour[lbl]
