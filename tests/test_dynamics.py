@@ -51,15 +51,19 @@ def _box_nodes(model):
     return np.ones(8, int), 0.5 * H * signs
 
 
-def _box_acc(R, t, w=(0.0, 0.0, 0.0), vc=(0.0, 0.0, 0.0), dt=0.01, xml=BOX):
-    """Node accelerations [8, 3] of the test box at pose (R, t) with twist (vc at its centre, w)."""
+def _box_state(R, t, w=(0.0, 0.0, 0.0), vc=(0.0, 0.0, 0.0), xml=BOX):
+    """The test box at pose (R, t) with twist (vc at its centre, w): its drives, nodes x and velocities v [1, 8, 3],
+    objects seg [8], element masses [8] and nodes in its body frame ref [8, 3]."""
     m = mujoco.MjModel.from_xml_string(xml)
     nb, ref = _box_nodes(m)
-    ds = drives_of(m, nb, ref)
     x = torch.tensor(ref @ R.T + t)[None]
     v = torch.tensor(np.asarray(vc) + np.cross(np.asarray(w), ref @ R.T))[None]
-    seg = torch.zeros(8, dtype=torch.long)
-    mass = torch.full((8,), 0.25, dtype=torch.float64)
+    return drives_of(m, nb, ref), x, v, torch.zeros(8, dtype=torch.long), torch.full((8,), 0.25, dtype=torch.float64), ref
+
+
+def _box_acc(R, t, w=(0.0, 0.0, 0.0), vc=(0.0, 0.0, 0.0), dt=0.01, xml=BOX):
+    """Node accelerations [8, 3] of the test box at pose (R, t) with twist (vc at its centre, w)."""
+    ds, x, v, seg, mass, ref = _box_state(R, t, w, vc, xml)
     acc = coupled_motor_accelerations(x, torch.zeros(1, 0), ds, torch.tensor(ref), seg, 1, v=v, mass=mass, dt=dt)
     a, alpha = project(acc, x, twist(x, v, seg, 1, mass), seg, 1, mass)
     return acc[0].numpy(), a[0, 0].numpy(), alpha[0, 0].numpy(), x[0].numpy()
@@ -698,13 +702,7 @@ def _push_box(R, t, w=(0.0, 0.0, 0.0), vc=(0.0, 0.0, 0.0)):
     """The test box's nodes and velocities before and after :func:`mdgs.actuation.push_out` at pose (R, t)."""
     from mdgs.actuation import push_out
 
-    m = mujoco.MjModel.from_xml_string(BOX)
-    nb, ref = _box_nodes(m)
-    ds = drives_of(m, nb, ref)
-    x = torch.tensor(ref @ R.T + t)[None]
-    v = torch.tensor(np.asarray(vc) + np.cross(np.asarray(w), ref @ R.T))[None]
-    seg = torch.zeros(8, dtype=torch.long)
-    mass = torch.full((8,), 0.25, dtype=torch.float64)
+    ds, x, v, seg, mass, ref = _box_state(R, t, w, vc)
     xn, vn = push_out(x, v, ds, torch.tensor(ref), seg, 1, mass)
     return x[0].numpy(), v[0].numpy(), xn[0].numpy(), vn[0].numpy(), ref
 

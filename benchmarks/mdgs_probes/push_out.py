@@ -18,14 +18,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from _tree_rows import tree_row
 
 import mdgs.actuation as actuation
 from mdgs.data.split import load_split
-from mdgs.evaluate import evaluate_reference
-from mdgs.models import MODELS
 
 torch.set_num_threads(1)
-ct = MODELS["constant-twist"]
 VARIANTS = [("off", None, None), ("push-out (slop 0, fraction 1)", 0.0, 1.0), ("slop 1 mm", 1e-3, 1.0),
             ("fraction 0.5", 0.0, 0.5), ("fraction 0.2", 0.0, 0.2)]
 default = (actuation.PUSH_OUT_SLOP, actuation.PUSH_OUT_FRACTION)
@@ -36,11 +34,8 @@ for scene in sys.argv[3:]:
         t0 = time.time()
         if slop is not None:
             actuation.PUSH_OUT_SLOP, actuation.PUSH_OUT_FRACTION = slop, frac
-        cfg = ct.Config(dynamics=True, joints=True, trapezoidal=True, push_out=slop is not None)
-        rep, r = evaluate_reference(ct(cfg), d, "cpu")
-        t110 = rep["mse_t110"] * 1e3 if rep["mse_t110"] is not None else float("nan")
-        print(f"{scene:20s} {sys.argv[2]:5s} {name:30s} t=40 {rep['mse_t40'] * 1e3:8.4g} (median {np.nanmedian(r.pos_mse[:, 39]) * 1e3:7.3g})"
-              f"  t=110 {t110:8.4g} (median {np.nanmedian(r.pos_mse[:, -1]) * 1e3:7.3g})  diverged {rep['diverged']}/{d.x.shape[0]}"
+        line, r = tree_row(d, dynamics=True, joints=True, trapezoidal=True, push_out=slop is not None)
+        print(f"{scene:20s} {sys.argv[2]:5s} {name:30s} {line}"
               f"  lowest node {np.nanmin(r.x[:, :, mov, 2]):7.4f} m (recorded {d.x[:, :, mov, 2].min():.4f})"
               f"  {time.time() - t0:.0f} s", flush=True)
 actuation.PUSH_OUT_SLOP, actuation.PUSH_OUT_FRACTION = default

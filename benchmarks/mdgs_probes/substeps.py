@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from _tree_rows import tree_row
 
 from mdgs.actuation import drives_of
 from mdgs.data.split import load_split
-from mdgs.evaluate import evaluate_reference
 from mdgs.graphs import SceneGraph
 from mdgs.models import MODELS
 from mdgs.models.base import State
@@ -35,13 +35,9 @@ for scene in sys.argv[3:]:
     for push in (False, True):
         for n in (1, 2, 4):
             t0 = time.time()
-            cfg = ct.Config(dynamics=True, joints=True, trapezoidal=True, push_out=push, substeps=n)
-            rep, r = evaluate_reference(ct(cfg), d, "cpu")
-            t110 = rep["mse_t110"] * 1e3 if rep["mse_t110"] is not None else float("nan")
-            print(f"{scene:18s} {split:5s} {'push-out' if push else 'no push-out':11s} {n} substeps  "
-                  f"t=40 {rep['mse_t40'] * 1e3:8.4g} (median {np.nanmedian(r.pos_mse[:, 39]) * 1e3:7.3g})  "
-                  f"t=110 {t110:8.4g} (median {np.nanmedian(r.pos_mse[:, -1]) * 1e3:7.3g})  "
-                  f"diverged {rep['diverged']}/{d.x.shape[0]}  {time.time() - t0:.0f} s", flush=True)
+            line, _ = tree_row(d, dynamics=True, joints=True, trapezoidal=True, push_out=push, substeps=n)
+            print(f"{scene:18s} {split:5s} {'push-out' if push else 'no push-out':11s} {n} substeps  {line}  "
+                  f"{time.time() - t0:.0f} s", flush=True)
 
 if "rotational-center" in sys.argv[3:]:
     d = load_split(root / "rotational-center" / f"{split}.h5")
