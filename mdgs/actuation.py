@@ -1049,6 +1049,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     # CONTACT_PASSES passes run: the same multipliers (an empty slot is a row lambda = 0), with shapes that do
     # not depend on the state; eager steps keep the smaller systems and stop early
     static = torch.compiler.is_compiling()
+    tangents = torch.tensor([True, True, False], device=dev)  # which of a candidate's rows are its tangents
     for _ in range(CONTACT_PASSES if contact else 1):
         if contact:  # the held corners first, as many slots as the batch's most held corners
             order = torch.argsort((~active).to(torch.int8), dim=-1, stable=True)
@@ -1096,7 +1097,6 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         fric = Jc[:, :, 2] - mu_c.clamp_max(1e9).view(1, -1, 1) * (d[..., :1] * Jc[:, :, 0] + d[..., 1:] * Jc[:, :, 1])
         normal = torch.where(slips.view(B, -1, 1), fric, torch.where(sticks.view(B, -1, 1), Jc[:, :, 2], Cc[:, :, 2]))
         Cc = torch.cat([Cc[:, :, :2], normal.unsqueeze(2)], 2)
-        tangents = torch.tensor([True, True, False], device=dev)
         rows_on = (rows_on & ~(slips.unsqueeze(-1) & tangents)) | (sticks.unsqueeze(-1) & tangents)
         if not static and not bool(pulls.any()) and not bool(slips.any()) and not bool(sticks.any()):
             break

@@ -9,7 +9,7 @@ and onto the joints (:func:`mdgs.joints.project_joints`). The controls are held 
 holds them over its steps. It is the "rigid tree" reference of :mod:`mdgs.models.references` and, with
 ``prior_substeps``, the state MDGS's "dynamics" prior hands its network to correct
 (:class:`mdgs.models.mdgs.MDGSConfig`). A fast rotor turns a radian or more in a 10 ms frame; one step per
-frame then gains energy where a few do not (docs/mdgs-experiments.md, "Substeps and friction").
+frame then gains energy where a few do not (docs/mdgs-experiments.md, "Substeps, friction and push-out").
 """
 
 from __future__ import annotations

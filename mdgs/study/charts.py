@@ -79,16 +79,14 @@ _REF_MARKERS = {"constant twist": "s", "constant twist + joints": "D", "constant
                 "rigid tree + joints, trapezoidal, push-out, 4 substeps": "*"}
 #: Markers for references not named above, handed out in the order the labels are first drawn.
 _MORE_MARKERS = ("p", "d", "<", ">", "8", "H", "1", "2")
+_more_given: dict[str, str] = {}  # label -> its marker from _MORE_MARKERS, so a label keeps it in every panel
 
 
-def _ref_marker(label: str, _seen: dict = {}) -> str:  # noqa: B006 (the cache is the point)
-    """A reference's marker: its own from ``_REF_MARKERS``, else the next of ``_MORE_MARKERS`` (the same for a
-    label every time it is drawn)."""
+def _ref_marker(label: str) -> str:
+    """A reference's marker: its own from ``_REF_MARKERS``, else the next of ``_MORE_MARKERS``."""
     if label in _REF_MARKERS:
         return _REF_MARKERS[label]
-    if label not in _seen:
-        _seen[label] = _MORE_MARKERS[len(_seen) % len(_MORE_MARKERS)]
-    return _seen[label]
+    return _more_given.setdefault(label, _MORE_MARKERS[len(_more_given) % len(_MORE_MARKERS)])
 
 
 def _eager_rows(lines, scene) -> set[str]:
