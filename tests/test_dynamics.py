@@ -286,6 +286,37 @@ def test_fade_leaves_a_training_state_to_g_and_a_state_far_outside_the_data_to_t
         MODELS["mdgs"].Config(fade=-1.0)
 
 
+def test_residual_scales_are_the_robust_spread_of_what_g_adds_to_the_rigid_tree(tiny_cubli):
+    """``scales = "residual"``: ``dv_scale`` is ``1.4826 median |r|`` of the training pairs' node velocity
+    residuals ``r`` against the rigid-tree reference's step (stepped here by the reference, not by MDGS; 5e-3
+    relative: the states are float32, so velocities of about 1 m/s carry 1e-7 m/s of round-off, a few
+    thousandths of a 5e-5 m/s residual), far below the increments' std (the tree does most of the frame); a value given
+    is kept, and the twist integrator, whose outputs are twists, is refused."""
+    from mdgs.models.mdgs import RESIDUAL_PAIRS
+
+    tr = load_split(tiny_cubli / "train.h5")
+    md, ct = MODELS["mdgs"], MODELS["constant-twist"]
+    settings = dict(actuation="dynamics", trapezoidal=True, prior_substeps=2)
+    res = md.resolve_config(md.Config(**settings, scales="residual"), tr)
+    inc = md.resolve_config(md.Config(**settings), tr)
+    ref = ct.from_data(tr, ct.Config(dynamics=True, joints=True, trapezoidal=True, substeps=2))
+    ref.bind(tr)
+    pairs = tr.pairs(0)
+    pairs = pairs[np.linspace(0, len(pairs) - 1, min(RESIDUAL_PAIRS, len(pairs))).astype(int)]
+    b = batch_of(tr, pairs, "cpu")
+    with torch.no_grad():
+        v1 = ref.step(State(b.x, b.v), b.ctrl).v
+    r = (b.v_next - v1)[:, tr.moving].double().numpy()
+    assert res.dv_scale == pytest.approx(1.4826 * np.median(np.abs(r)), rel=5e-3)
+    assert res.dv_scale < inc.dv_scale / 10 and res.dx_scale < inc.dx_scale
+    assert len(res.dv_scales) == len(inc.dv_scales) and all(a < b for a, b in zip(res.dv_scales[1:], inc.dv_scales[1:], strict=True))
+    assert md.resolve_config(md.Config(**settings, scales="residual", dv_scale=0.5), tr).dv_scale == 0.5
+    with pytest.raises(ValueError, match="twist"):
+        md.Config(integrator="twist", scales="residual")
+    with pytest.raises(ValueError, match="scales must be one of"):
+        md.Config(scales="median")
+
+
 def test_gravity_prior_with_the_dynamics_prior_is_refused():
     with pytest.raises(ValueError, match="already adds gravity"):
         MODELS["mdgs"].Config(actuation="dynamics", gravity_prior=True)

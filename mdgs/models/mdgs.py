@@ -50,7 +50,7 @@ from mdgs.graphs import (
 )
 from mdgs.joints import JointSet, joints_of, project_joints
 from mdgs.losses import constraint_loss, huber_loss, mse_loss, pair_mse, speeds_of
-from mdgs.models.base import Batch, ModelError, Simulator, State
+from mdgs.models.base import Batch, ModelError, Simulator, State, batch_of
 from mdgs.models.integrators import INTEGRATORS
 from mdgs.models.layers import GCN
 from mdgs.rigid import advance, perturb, project, twist
@@ -68,6 +68,15 @@ CUBLI_NOISE = 4e-4
 #: moves in the training split (a cube at rest) would otherwise get a scale that magnifies any
 #: output noise on it a thousandfold. The small study's bodies all lie above it (0.097-1.4).
 OBJECT_SCALE_FLOOR = 0.05
+#: Where g's output scales come from (``scales``): the increments' std, or the priors' robust residual.
+SCALES = ("increments", "residual")
+#: Training pairs the "residual" scales are measured on (a fixed, evenly spaced subset).
+RESIDUAL_PAIRS = 2048
+#: Least "residual" scale, as a fraction of the increments' scale of the same quantity and object: where the
+#: tree is exact on most frames (the user scene's bodies at rest: a median residual of 1e-8 m/s, float32
+#: round-off) the median alone would ask g for a precision its float32 output does not have. The Cubli's
+#: residual scales lie above it (2-4e-4 of the increments').
+RESIDUAL_FLOOR = 1e-4
 #: What MDGS knows of a scene's motors (``actuation``, :mod:`mdgs.actuation`).
 ACTUATION = ("none", "force", "step", "prior", "coupled", "dynamics")
 #: Node features z_i (``features``): the paper's [x || v || k], or "local" (module docstring).
@@ -186,6 +195,15 @@ class MDGSConfig:
         velocity part changes each object's twist, moving it by the change times dt/2 (trapezoidal) or dt,
         its position part moves it rigidly. Untrained, MDGS is then the "rigid tree + joints, N substeps"
         reference.
+    scales : where the scales left at 1.0 (``dx_scale``, ``dv_scale`` and, with ``object_scales``, the
+        per-object ones) come from: "increments" (the std of the frame's increments under the integrator,
+        as without priors g predicts them) or "residual" (what g must add to its zero output, that is to
+        the priors, on the training split: per object ``1.4826 median |r|`` over the components of the
+        moving nodes' residuals ``r``, a robust spread, floored as ``object_scales`` floors and at
+        ``RESIDUAL_FLOOR`` = 1e-4 of the increments' scale). With a
+        rigid-tree prior the common residual is a thousandth of the increments and the rare impacts
+        hold its std, so under "increments" g's output must be precise to 1e-3 of its range on the
+        quiet frames (docs/mdgs-experiments.md, "Output scales from the prior's residual").
     Scales left at 1.0, ``control_dim``, ``contact``, ``dt`` and the sigmas are filled from the
     training split by :meth:`MDGS.resolve_config`.
     """
@@ -220,6 +238,7 @@ class MDGSConfig:
     fade: float = 0.0
     push_out: bool = False
     prior_substeps: int = 1
+    scales: str = "increments"
     noise: str = "auto"
     noise_sigma_x: float = -1.0
     noise_sigma_v: float = -1.0
@@ -282,6 +301,11 @@ class MDGSConfig:
         if self.prior_input and self.actuation == "none" and not self.gravity_prior:
             raise ValueError("prior_input = true needs a prior for g to read: set actuation (e.g. \"dynamics\") "
                              "or gravity_prior = true")
+        if self.scales not in SCALES:
+            raise ValueError(f"scales must be one of {', '.join(SCALES)}, got {self.scales!r}")
+        if self.scales == "residual" and self.integrator == "twist":
+            raise ValueError("scales = 'residual' measures g's position and velocity outputs; the 'twist' integrator "
+                             "has twist outputs: use scales = 'increments' with it")
         if not isinstance(self.push_out, bool):
             raise ValueError(f"push_out must be true or false, got {self.push_out!r}")
         if self.push_out and self.actuation != "dynamics":
@@ -526,12 +550,53 @@ class MDGS(Simulator):
             kw["dv_scale"] = float(max(dv.std(), 1e-12))
         if cfg.force_scale == 1.0:  # typical |M dv / dt| of an element, N
             kw["force_scale"] = f_scale
+        if cfg.scales == "residual":  # the values not given, measured on the priors' residual
+            inc = replace(cfg, **kw)
+            res = cls._residual_scales(inc, d, scene)
+            for k, val in list(res.items()):  # floored at RESIDUAL_FLOOR of the increments' scale
+                base = getattr(inc, k)
+                if not isinstance(val, tuple):
+                    res[k] = max(val, RESIDUAL_FLOOR * base)
+                elif len(base) == len(val):
+                    res[k] = tuple(max(a, RESIDUAL_FLOOR * b) for a, b in zip(val, base, strict=True))
+            given = {"dx_scale": cfg.dx_scale != 1.0, "dv_scale": cfg.dv_scale != 1.0,
+                     "dx_scales": bool(cfg.dx_scales), "dv_scales": bool(cfg.dv_scales)}
+            kw.update({k: val for k, val in res.items() if not given[k]})
         sx, sv = noise_sigmas(cfg.noise, d)
         if isinstance(sx, tuple):  # per object
             kw["noise_sigma_x"], kw["noise_sigma_v"], kw["noise_sigma_xs"], kw["noise_sigma_vs"] = 0.0, 0.0, sx, sv
         else:
             kw["noise_sigma_x"], kw["noise_sigma_v"] = sx, sv
         return replace(cfg, **kw)
+
+    @classmethod
+    def _residual_scales(cls, cfg: MDGSConfig, d: SplitData, scene: SceneGraph) -> dict:
+        """The ``scales = "residual"`` values: ``dx_scale``, ``dv_scale`` and, with ``object_scales``, per object
+        (the ones not given in ``cfg``), from what g must add to its zero output on ``RESIDUAL_PAIRS`` evenly
+        spaced training pairs: ``1.4826 median |r|`` over the components of the moving nodes' residuals ``r``."""
+        model = cls(cfg)
+        model.bind(d)
+        pairs = d.pairs(model.history)
+        pairs = pairs[np.linspace(0, len(pairs) - 1, min(RESIDUAL_PAIRS, len(pairs))).astype(int)]
+        rx, rv = [], []
+        with torch.no_grad():
+            for i in range(0, len(pairs), 256):
+                b = batch_of(d, pairs[i:i + 256], "cpu", model.history)
+                x0, v0 = model._zero_step(scene, b.x, b.v, model._priors(scene, b.x, b.v, b.ctrl))
+                rx.append((b.x_next - x0)[:, d.moving].double().numpy())
+                rv.append((b.v_next - v0)[:, d.moving].double().numpy())
+        rx, rv = np.concatenate(rx), np.concatenate(rv)  # [P, N_moving, 3]
+        spread = lambda r: max(1.4826 * float(np.median(np.abs(r))), 1e-12)  # noqa: E731
+        gx, gv = spread(rx), spread(rv)
+        kw = {"dx_scale": gx, "dv_scale": gv}
+        if cfg.object_scales:
+            om = np.asarray(scene.obj)[d.moving]
+            sx, sv = [1.0] * scene.n_obj, [1.0] * scene.n_obj
+            for o in np.unique(om):
+                sx[o] = max(spread(rx[:, om == o]), OBJECT_SCALE_FLOOR * gx)
+                sv[o] = max(spread(rv[:, om == o]), OBJECT_SCALE_FLOOR * gv)
+            kw["dx_scales"], kw["dv_scales"] = tuple(sx), tuple(sv)
+        return kw
 
     def fit(self, d: SplitData) -> None:
         """Mean and std of the raw node features z over 256 random training frames."""
