@@ -77,6 +77,9 @@ RESIDUAL_PAIRS = 2048
 #: round-off) the median alone would ask g for a precision its float32 output does not have. The Cubli's
 #: residual scales lie above it (2-4e-4 of the increments').
 RESIDUAL_FLOOR = 1e-4
+#: And at this many times the float32 round-off of the quantity itself (machine epsilon times the RMS
+#: position or velocity of the split's moving nodes): a residual below it is round-off in the data.
+ROUNDOFF_FACTOR = 10
 #: What MDGS knows of a scene's motors (``actuation``, :mod:`mdgs.actuation`).
 ACTUATION = ("none", "force", "step", "prior", "coupled", "dynamics")
 #: Node features z_i (``features``): the paper's [x || v || k], or "local" (module docstring).
@@ -199,8 +202,9 @@ class MDGSConfig:
         per-object ones) come from: "increments" (the std of the frame's increments under the integrator,
         as without priors g predicts them) or "residual" (what g must add to its zero output, that is to
         the priors, on the training split: per object ``1.4826 median |r|`` over the components of the
-        moving nodes' residuals ``r``, a robust spread, floored as ``object_scales`` floors and at
-        ``RESIDUAL_FLOOR`` = 1e-4 of the increments' scale). With a
+        moving nodes' residuals ``r``, a robust spread, floored as ``object_scales`` floors, at
+        ``RESIDUAL_FLOOR`` = 1e-4 of the increments' scale and at ``ROUNDOFF_FACTOR`` = 10 times the float32
+        round-off of the split's positions or velocities). With a
         rigid-tree prior the common residual is a thousandth of the increments and the rare impacts
         hold its std, so under "increments" g's output must be precise to 1e-3 of its range on the
         quiet frames (docs/mdgs-experiments.md, "Output scales from the prior's residual").
@@ -573,7 +577,8 @@ class MDGS(Simulator):
     def _residual_scales(cls, cfg: MDGSConfig, d: SplitData, scene: SceneGraph) -> dict:
         """The ``scales = "residual"`` values: ``dx_scale``, ``dv_scale`` and, with ``object_scales``, per object
         (the ones not given in ``cfg``), from what g must add to its zero output on ``RESIDUAL_PAIRS`` evenly
-        spaced training pairs: ``1.4826 median |r|`` over the components of the moving nodes' residuals ``r``."""
+        spaced training pairs: ``1.4826 median |r|`` over the components of the moving nodes' residuals ``r``,
+        at least ``ROUNDOFF_FACTOR`` times the float32 round-off of the quantity."""
         model = cls(cfg)
         model.bind(d)
         pairs = d.pairs(model.history)
@@ -586,15 +591,17 @@ class MDGS(Simulator):
                 rx.append((b.x_next - x0)[:, d.moving].double().numpy())
                 rv.append((b.v_next - v0)[:, d.moving].double().numpy())
         rx, rv = np.concatenate(rx), np.concatenate(rv)  # [P, N_moving, 3]
-        spread = lambda r: max(1.4826 * float(np.median(np.abs(r))), 1e-12)  # noqa: E731
-        gx, gv = spread(rx), spread(rv)
+        eps = float(np.finfo(np.float32).eps)
+        fx, fv = (ROUNDOFF_FACTOR * eps * float(np.sqrt((q[:, :, d.moving] ** 2).sum(-1).mean())) for q in (d.x, d.v))
+        spread = lambda r, floor: max(1.4826 * float(np.median(np.abs(r))), floor, 1e-12)  # noqa: E731
+        gx, gv = spread(rx, fx), spread(rv, fv)
         kw = {"dx_scale": gx, "dv_scale": gv}
         if cfg.object_scales:
             om = np.asarray(scene.obj)[d.moving]
             sx, sv = [1.0] * scene.n_obj, [1.0] * scene.n_obj
             for o in np.unique(om):
-                sx[o] = max(spread(rx[:, om == o]), OBJECT_SCALE_FLOOR * gx)
-                sv[o] = max(spread(rv[:, om == o]), OBJECT_SCALE_FLOOR * gv)
+                sx[o] = max(spread(rx[:, om == o], fx), OBJECT_SCALE_FLOOR * gx)
+                sv[o] = max(spread(rv[:, om == o], fv), OBJECT_SCALE_FLOOR * gv)
             kw["dx_scales"], kw["dv_scales"] = tuple(sx), tuple(sv)
         return kw
 
