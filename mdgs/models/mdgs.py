@@ -499,7 +499,8 @@ class MDGS(Simulator):
         """Fill scales left at 1.0 from the training data; set ``control_dim``, ``contact``, ``dt``, sigmas.
 
         ``dx_scale``, ``dv_scale``: std of what g predicts under the chosen integrator (position
-        residual and velocity increment); ``force_scale``: mean ``|M dv / dt|`` of an element.
+        residual and velocity increment), or with ``scales = "residual"`` the robust spread of what g must
+        add to the priors (:meth:`_residual_scales`); ``force_scale``: mean ``|M dv / dt|`` of an element.
         """
         cfg = config
         dx, dv = _increments(d)
