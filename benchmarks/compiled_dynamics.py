@@ -1,6 +1,6 @@
 """What compiling the rigid tree's forward dynamics buys on this machine: eager against ``torch.compile``.
 
-    python benchmarks/compiled_dynamics.py [--scene cubli-triple] [--batch 16]
+    python benchmarks/compiled_dynamics.py [--scene cubli-triple] [--batch 16] [--substeps 4]
 
 One run, one torch thread, untrained weights, a ``tiny`` dataset of the scene
 (:func:`bench_models.tiny_splits`). For the rigid-tree reference (constant twist with the whole tree's
@@ -9,7 +9,9 @@ one trajectory and per trajectory-frame at ``--batch`` trajectories, eager and c
 (:func:`mdgs.evaluate.cost.compiled_cost`; compile seconds outside the timings). Compiled, the forward
 dynamics solves with a slot for every contact candidate and runs every pass
 (:func:`mdgs.actuation.coupled_motor_accelerations`), so that its shapes do not follow the state: cheaper
-for one trajectory (no graph breaks), dearer in a batch (larger systems than the eager step's).
+for one trajectory (no graph breaks), dearer in a batch (larger systems than the eager step's). ``--substeps N`` (N > 1) measures the tree and MDGS
+in N substeps with push-out instead (``studies/mdgs-substeps.toml``'s settings), whose compiled graph holds
+every substep's active-set passes: its compiling takes minutes.
 """
 
 from __future__ import annotations
@@ -27,12 +29,17 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scene", default="cubli-triple")
     ap.add_argument("--batch", type=int, default=16)
+    ap.add_argument("--substeps", type=int, default=1, help="N > 1: N substeps with push-out")
     args = ap.parse_args()
     torch.set_num_threads(1)
     tr, te = tiny_splits(args.scene)
     ct, md = MODELS["constant-twist"], MODELS["mdgs"]
-    builds = {"rigid tree, trapezoidal": lambda: ct.from_data(te, ct.Config(dynamics=True, trapezoidal=True)),
-              "mdgs + dynamics prior": lambda: md.from_data(tr, md.Config(actuation="dynamics", trapezoidal=True))}
+    sub = {} if args.substeps == 1 else {"push_out": True}
+    tag = "" if args.substeps == 1 else f", {args.substeps} sub."
+    builds = {f"rigid tree, trapezoidal{tag}": lambda: ct.from_data(te, ct.Config(
+                  dynamics=True, trapezoidal=True, substeps=args.substeps, **sub)),
+              f"mdgs + dynamics prior{tag}": lambda: md.from_data(tr, md.Config(
+                  actuation="dynamics", trapezoidal=True, prior_substeps=args.substeps, **sub))}
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, CPU, 1 torch thread")
     print(f"{'model':26s}{'step':>10s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>12s}{'compile s':>11s}")
     for label, build in builds.items():
