@@ -556,14 +556,7 @@ class MDGS(Simulator):
         if cfg.force_scale == 1.0:  # typical |M dv / dt| of an element, N
             kw["force_scale"] = f_scale
         if cfg.scales == "residual":  # the values not given, measured on the priors' residual
-            inc = replace(cfg, **kw)
-            res = cls._residual_scales(inc, d, scene)
-            for k, val in list(res.items()):  # floored at RESIDUAL_FLOOR of the increments' scale
-                base = getattr(inc, k)
-                if not isinstance(val, tuple):
-                    res[k] = max(val, RESIDUAL_FLOOR * base)
-                elif len(base) == len(val):
-                    res[k] = tuple(max(a, RESIDUAL_FLOOR * b) for a, b in zip(val, base, strict=True))
+            res = cls._residual_scales(replace(cfg, **kw), d, scene)
             given = {"dx_scale": cfg.dx_scale != 1.0, "dv_scale": cfg.dv_scale != 1.0,
                      "dx_scales": bool(cfg.dx_scales), "dv_scales": bool(cfg.dv_scales)}
             kw.update({k: val for k, val in res.items() if not given[k]})
@@ -576,10 +569,11 @@ class MDGS(Simulator):
 
     @classmethod
     def _residual_scales(cls, cfg: MDGSConfig, d: SplitData, scene: SceneGraph) -> dict:
-        """The ``scales = "residual"`` values: ``dx_scale``, ``dv_scale`` and, with ``object_scales``, per object
-        (the ones not given in ``cfg``), from what g must add to its zero output on ``RESIDUAL_PAIRS`` evenly
-        spaced training pairs: ``1.4826 median |r|`` over the components of the moving nodes' residuals ``r``,
-        at least ``ROUNDOFF_FACTOR`` times the float32 round-off of the quantity."""
+        """The ``scales = "residual"`` values: ``dx_scale``, ``dv_scale`` and, with ``object_scales``, per object,
+        from what g must add to its zero output on ``RESIDUAL_PAIRS`` evenly spaced training pairs: ``1.4826
+        median |r|`` over the components of the moving nodes' residuals ``r``, at least ``ROUNDOFF_FACTOR`` times
+        the float32 round-off of the quantity, then at least ``RESIDUAL_FLOOR`` times the increments' scale
+        that ``cfg`` holds."""
         model = cls(cfg)
         model.bind(d)
         pairs = d.pairs(model.history)
@@ -596,13 +590,16 @@ class MDGS(Simulator):
         fx, fv = (ROUNDOFF_FACTOR * eps * float(np.sqrt((q[:, :, d.moving] ** 2).sum(-1).mean())) for q in (d.x, d.v))
         spread = lambda r, floor: max(1.4826 * float(np.median(np.abs(r))), floor, 1e-12)  # noqa: E731
         gx, gv = spread(rx, fx), spread(rv, fv)
-        kw = {"dx_scale": gx, "dv_scale": gv}
+        kw = {"dx_scale": max(gx, RESIDUAL_FLOOR * cfg.dx_scale), "dv_scale": max(gv, RESIDUAL_FLOOR * cfg.dv_scale)}
         if cfg.object_scales:
             om = np.asarray(scene.obj)[d.moving]
             sx, sv = [1.0] * scene.n_obj, [1.0] * scene.n_obj
             for o in np.unique(om):
                 sx[o] = max(spread(rx[:, om == o], fx), OBJECT_SCALE_FLOOR * gx)
                 sv[o] = max(spread(rv[:, om == o], fv), OBJECT_SCALE_FLOOR * gv)
+            if len(cfg.dx_scales) == scene.n_obj:  # the increments' per-object scales (the rigid integrators)
+                sx = [max(a, RESIDUAL_FLOOR * b) for a, b in zip(sx, cfg.dx_scales, strict=True)]
+                sv = [max(a, RESIDUAL_FLOOR * b) for a, b in zip(sv, cfg.dv_scales, strict=True)]
             kw["dx_scales"], kw["dv_scales"] = tuple(sx), tuple(sv)
         return kw
 
