@@ -8,8 +8,8 @@
 #      and `mdgs evaluate --device cuda` end to end, compiled steps on the GPU;
 #   4. benchmarks/profile_step.py --device cuda: kernels per single-trajectory step and the GPU-busy share, eager
 #      and replayed as CUDA graphs (launches, graph replays and device waits per step; dynamo's graph breaks logged).
-# Open on the next loan (docs/results.md, "third loan"): whether MDGS on the rigid tree's forward dynamics, which
-# now traces as one graph when compiled, captures and what it then costs (PARTS=tests PYTEST_K=dynamics_prior).
+# MDGS on the rigid tree's forward dynamics captures as a CUDA graph, one step a frame and in 4 substeps (docs/results.md,
+# "fourth loan", "fifth loan"; PARTS=tests PYTEST_K=dynamics_prior). Open on the next loan: what the captured step costs.
 # PARTS picks parts (default "eager compiled tests profile"); all four take more than one 10-minute
 # device call, so run PARTS="eager compiled" and PARTS="tests profile" as two calls.
 # PYTEST_K selects tests (pytest -k). Outputs go to $OUT (default cuda-out/): env.txt, bench_eager.txt,

@@ -13,7 +13,8 @@ captured step fits rotations by Horn's method instead of the SVD (``mdgs.structu
 On one H200 (2026-11-27) all 37 tests passed, the CUDA-graph ones (MDGS, constant twist) included;
 on another H200 (2026-11-27, later) the 41 tests before the 4-substep push-out CUDA-graph replay passed
 (MDGS on the 4-substep prior with push-out against the CPU included), and so did the rigid tree's
-(one step; 4 substeps with push-out); the replay itself ran past 180 s and was stopped.
+(one step; 4 substeps with push-out); the replay itself ran past 180 s and was stopped. On one H100
+(2026-11-27, a fifth loan) that replay, run alone, passed in 275 s.
 
 Tolerances: both devices compute in float32 with other kernels and summation orders (cuBLAS,
 atomic scatter-adds), so results agree to float32 round-off amplified through a few layers, not
@@ -226,9 +227,8 @@ def test_mdgs_on_the_dynamics_prior_agrees_between_cpu_and_cuda(which, splits):
 def test_mdgs_on_the_dynamics_prior_replays_as_a_cuda_graph_as_the_eager_step(which, splits):
     """The first 20 predicted frames of the replayed step within 1e-3 relative of the eager step's.
 
-    The 4-substep, push-out case has not yet been seen to finish: on one H200 (2026-11-27) it ran past
-    180 s (tracing four substeps of the tree, each with its active-set passes, is one large graph), so
-    it rolls out only the frames it compares."""
+    The 4-substep, push-out case traces four substeps of the tree, each with its active-set passes, into
+    one large graph: 275 s on one H100 (2026-11-27), so it rolls out only the frames it compares."""
     tr, te = splits
     _, gpu = _dynamics_pair(DYNAMICS_CONFIGS[which], tr)
     te = _short(te, gpu.history + 21)
