@@ -12,6 +12,10 @@ dynamics solves with a slot for every contact candidate and runs every pass
 for one trajectory (no graph breaks), dearer in a batch (larger systems than the eager step's). ``--substeps N`` (N > 1) measures the tree and MDGS
 in N substeps with push-out instead (``studies/mdgs-substeps.toml``'s settings), whose compiled graph holds
 every substep's active-set passes: its compiling takes minutes.
+
+``--device cuda`` measures on the GPU instead, where ``--modes none cudagraphs`` compares the eager step with
+the step replayed as a CUDA graph (:func:`mdgs.models.compile_step`); ``--models tree`` or ``mdgs`` measures one
+of the two; ``--batch 1`` times (and compiles) one trajectory only.
 """
 
 from __future__ import annotations
@@ -30,25 +34,31 @@ def main() -> None:
     ap.add_argument("--scene", default="cubli-triple")
     ap.add_argument("--batch", type=int, default=16)
     ap.add_argument("--substeps", type=int, default=1, help="N > 1: N substeps with push-out")
+    ap.add_argument("--device", default="cpu", help="cpu, or cuda")
+    ap.add_argument("--modes", nargs="*", default=["none", "inductor"], choices=("none", "inductor", "cudagraphs"),
+                    help="how the step runs: none (eager), inductor (torch.compile), cudagraphs (CUDA only)")
+    ap.add_argument("--models", nargs="*", default=["tree", "mdgs"], choices=("tree", "mdgs"))
     args = ap.parse_args()
     torch.set_num_threads(1)
+    dev = torch.device(args.device)
     tr, te = tiny_splits(args.scene)
     ct, md = MODELS["constant-twist"], MODELS["mdgs"]
     sub = {} if args.substeps == 1 else {"push_out": True}
     tag = "" if args.substeps == 1 else f", {args.substeps} sub."
-    builds = {f"rigid tree, trapezoidal{tag}": lambda: ct.from_data(te, ct.Config(
-                  dynamics=True, trapezoidal=True, substeps=args.substeps, **sub)),
-              f"mdgs + dynamics prior{tag}": lambda: md.from_data(tr, md.Config(
-                  actuation="dynamics", trapezoidal=True, prior_substeps=args.substeps, **sub))}
-    print(f"scene {args.scene}: {tr.x.shape[2]} nodes, CPU, 1 torch thread")
-    print(f"{'model':26s}{'step':>10s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>12s}{'compile s':>11s}")
-    for label, build in builds.items():
-        for mode in ("none", "inductor"):
-            r = compiled_cost(build(), te, mode, batched=args.batch)
-            print(f"{label:26s}{r['compiled']:>10s}{r['single']['ms_per_frame']:>10.3f}"
+    builds = {"tree": (f"rigid tree, trapezoidal{tag}", lambda: ct.from_data(te, ct.Config(
+                  dynamics=True, trapezoidal=True, substeps=args.substeps, **sub))),
+              "mdgs": (f"mdgs + dynamics prior{tag}", lambda: md.from_data(tr, md.Config(
+                  actuation="dynamics", trapezoidal=True, prior_substeps=args.substeps, **sub)))}
+    where = "CPU, 1 torch thread" if dev.type == "cpu" else f"{torch.cuda.get_device_name(dev)}, torch {torch.__version__}"
+    print(f"scene {args.scene}: {tr.x.shape[2]} nodes, {where}")
+    print(f"{'model':32s}{'step':>10s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>12s}{'compile s':>11s}")
+    for label, build in (builds[k] for k in args.models):
+        for mode in args.modes:
+            r = compiled_cost(build().to(dev), te, mode, batched=args.batch)
+            print(f"{label:32s}{r['compiled']:>10s}{r['single']['ms_per_frame']:>10.3f}"
                   f"{r['batched']['ms_per_trajectory_frame']:>12.3f}{r['compile_seconds']:>11.0f}"
                   + (f"  ({r['note']})" if r["note"] else ""), flush=True)
-    print("step: none = eager, inductor = torch.compile; ms/f b1: ms per frame, one trajectory; ms/tf bN: ms per "
+    print("step: none = eager, inductor = torch.compile, cudagraphs = replayed as a CUDA graph; ms/f b1: ms per frame, one trajectory; ms/tf bN: ms per "
           "trajectory-frame at batch N")
 
 
