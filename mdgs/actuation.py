@@ -66,7 +66,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from mdgs.rigid import advance, twist
+from mdgs.rigid import _skew_mat, advance, twist
 from mdgs.structure import fixes_rotation, kabsch, segment_mean
 
 #: Forward dynamics' contact (:func:`coupled_motor_accelerations`): a box corner closer to a surface than
@@ -80,6 +80,14 @@ CONTACT_COMPLIANCE = 1e-6
 #: surface at the frame's end under the trapezoidal step where the gap is more than half the frame's
 #: travel (benchmarks/mdgs_probes/speculative_contact.py; not a default: see its output).
 CONTACT_SPECULATIVE = False
+#: The gyroscopic torque ``-w x (I w)`` of every moving object explicit (False, the studies' rule: evaluated at
+#: the step's start) or linearly implicit (True): its Jacobian in ``w`` times the step joins the mass matrix,
+#: ``I + dt (skew(w) I - skew(I w))``, one Newton step of the implicit update (Catto 2015; Bullet's implicit
+#: gyroscopic force), which does not gain energy for a body spun fast about an axis other than its own
+#: (benchmarks/mdgs_probes/gyroscopic.py).
+GYRO_IMPLICIT = False
+import os as _os
+_GX = _os.environ.get("GX", "AGP")
 #: Passes of the active-set search that lets go of corners a surface would pull (and limits that would pull),
 #: lets a sticking corner slide where its hold leaves the friction cone and sticks a sliding one whose
 #: friction would turn its slip round within the frame.
@@ -816,13 +824,16 @@ def _joint_row(S: int, B: int, xd: torch.Tensor, xs: torch.Tensor, c: int, p: in
 
 
 def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: DriveSet, S: int,
-          w: torch.Tensor | None) -> tuple:
+          w: torch.Tensor | None, h: float | None = None) -> tuple:
     """The tree's mass matrix and joint rows at the poses ``R, t`` (:func:`coupled_motor_accelerations`).
 
     Returns the mass centres ``xs`` [B, S, 3], ``M`` [B, 6S, 6S] (with the joints' armature), the world
     inertias ``ang`` [B, S, 3, 3], the rows ``J`` (a list of [B, k, 6S]: the world's elements held, each
     link's) with their right-hand sides ``rhs`` (list of [B, k]: the velocity terms of the twists ``w``
-    [B, S, 3], zero without them) and ``rate`` (child object -> its hinge's or slide's rate row [B, 1, 6S])."""
+    [B, S, 3], zero without them) and ``rate`` (child object -> its hinge's or slide's rate row [B, 1, 6S]).
+    With a step ``h`` (``GYRO_IMPLICIT``), each row of a hinge or ball anchor and of a hinge's cross-axis
+    directions is less ``h`` times its velocity term's Jacobian in the twists' angular velocities: the rows
+    of ``J z = rhs(w + h z)`` linearised, so that the velocity terms act at the step's end."""
     B, dev, f64 = xd.shape[0], xd.device, torch.float64
     xs = (R @ T["com"].unsqueeze(-1)).squeeze(-1) + t  # mass centres [B, S, 3]
     fixed = torch.as_tensor(drives.fixed, device=dev)
@@ -851,6 +862,11 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
             rp0 = rp if rp is not None else zero3
             rhs.append(-(torch.linalg.cross(wc, torch.linalg.cross(wc, rc, dim=-1), dim=-1)
                          - torch.linalg.cross(wp, torch.linalg.cross(wp, rp0, dim=-1), dim=-1)))
+            if h is not None and lk.kind != "weld" and "A" in _GX:  # d/dw of -(w x (w x r)) is skew(w x r) + skew(w) skew(r)
+                blk = J[-1].view(B, 3, S, 6)
+                blk[:, :, c, 3:] -= h * (_skew_mat(torch.linalg.cross(wc, rc, dim=-1)) + _skew_mat(wc) @ _skew_mat(rc))
+                if p >= 0:
+                    blk[:, :, p, 3:] += h * (_skew_mat(torch.linalg.cross(wp, rp, dim=-1)) + _skew_mat(wp) @ _skew_mat(rp))
         if lk.kind in ("slide", "weld"):
             J.append(_rows(S, B, xd, c, p, world))
             rhs.append(xd.new_zeros(B, 3))
@@ -858,6 +874,11 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
             D = _world_of(R, t, p, lk.perp)  # [B, 2, 3], turning with the parent
             J.append(_rows(S, B, xd, c, p, D))
             rhs.append((D * torch.linalg.cross(wp, wc - wp, dim=-1).unsqueeze(1)).sum(-1))
+            if h is not None and "P" in _GX:  # d/dw_c of D . (w_p x (w_c - w_p)) is D x w_p, d/dw_p is w_c x D
+                blk = J[-1].view(B, 2, S, 6)
+                blk[:, :, c, 3:] -= h * torch.linalg.cross(D, wp.unsqueeze(1).expand_as(D), dim=-1)
+                if p >= 0:
+                    blk[:, :, p, 3:] -= h * torch.linalg.cross(wc.unsqueeze(1).expand_as(D), D, dim=-1)
         if lk.kind == "slide":
             J.append(_rows(S, B, xd, c, p, _world_of(R, t, p, lk.perp), rc, rp))
             rhs.append(xd.new_zeros(B, 2))
@@ -948,7 +969,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         tw = twist(xd, v, seg, n_obj, mass.to(dev))
         w = tw.omega  # [B, S, 3]
     B, S = x.shape[0], n_obj
-    xs, M, ang, J, rhs, rate = _tree(xd, R, t, T, drives, S, w if dynamic else None)
+    xs, M, ang, J, rhs, rate = _tree(xd, R, t, T, drives, S, w if dynamic else None,
+                                     dt if dynamic and GYRO_IMPLICIT else None)
     fixed = torch.as_tensor(drives.fixed, device=dev)
     zero3 = xd.new_zeros(B, 3)
 
@@ -971,8 +993,14 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         moving = (~fixed).to(f64).view(1, S, 1)
         grav = torch.as_tensor(drives.gravity, dtype=f64, device=dev)
         Iw = ang  # [B, S, 3, 3]
-        gyro = -torch.linalg.cross(w, (Iw @ w.unsqueeze(-1)).squeeze(-1), dim=-1)
+        L_ = (Iw @ w.unsqueeze(-1)).squeeze(-1)  # angular momenta [B, S, 3]
+        gyro = -torch.linalg.cross(w, L_, dim=-1)
         F = F + (moving * torch.cat([T["mass"].view(1, S, 1) * grav.expand(B, S, 3), gyro], -1)).reshape(B, 6 * S)
+        if GYRO_IMPLICIT and "G" in _GX:  # d(w x I w)/dw = skew(w) I - skew(I w), times the step, into each angular block
+            jac = dt * (_skew_mat(w) @ Iw - _skew_mat(L_)) * moving.view(1, S, 1, 1)  # [B, S, 3, 3]
+            blk = xd.new_zeros(B, S, 6, 6)
+            blk[:, :, 3:, 3:] = jac
+            M = M + torch.einsum("bsij,st->bsitj", blk, torch.eye(S, dtype=f64, device=dev)).reshape(B, 6 * S, 6 * S)
     C0 = sum(j.shape[1] for j in J)
     # unilateral candidates: corners against the world's surfaces, joints against their range limits;
     # each with three rows [B, k, 3, 6S] (two tangents, the normal), their right-hand sides [B, k, 3],
