@@ -80,14 +80,6 @@ CONTACT_COMPLIANCE = 1e-6
 #: surface at the frame's end under the trapezoidal step where the gap is more than half the frame's
 #: travel (benchmarks/mdgs_probes/speculative_contact.py; not a default: see its output).
 CONTACT_SPECULATIVE = False
-#: The gyroscopic torque ``-w x (I w)`` of every moving object explicit (False, the studies' rule: evaluated at
-#: the step's start) or linearly implicit (True): its Jacobian in ``w`` times the step joins the mass matrix,
-#: ``I + dt (skew(w) I - skew(I w))``, one Newton step of the implicit update (Catto 2015; Bullet's implicit
-#: gyroscopic force), which does not gain energy for a body spun fast about an axis other than its own
-#: (benchmarks/mdgs_probes/gyroscopic.py).
-GYRO_IMPLICIT = False
-import os as _os
-_GX = _os.environ.get("GX", "AGP")
 #: Passes of the active-set search that lets go of corners a surface would pull (and limits that would pull),
 #: lets a sticking corner slide where its hold leaves the friction cone and sticks a sliding one whose
 #: friction would turn its slip round within the frame.
@@ -831,9 +823,9 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
     inertias ``ang`` [B, S, 3, 3], the rows ``J`` (a list of [B, k, 6S]: the world's elements held, each
     link's) with their right-hand sides ``rhs`` (list of [B, k]: the velocity terms of the twists ``w``
     [B, S, 3], zero without them) and ``rate`` (child object -> its hinge's or slide's rate row [B, 1, 6S]).
-    With a step ``h`` (``GYRO_IMPLICIT``), each row of a hinge or ball anchor and of a hinge's cross-axis
-    directions is less ``h`` times its velocity term's Jacobian in the twists' angular velocities: the rows
-    of ``J z = rhs(w + h z)`` linearised, so that the velocity terms act at the step's end."""
+    With a step ``h`` (``implicit`` of :func:`coupled_motor_accelerations`), each of a hinge's two cross-axis
+    rows is less ``h`` times its velocity term's gradient in the twists' angular velocities, the row of
+    ``J z = rhs(w + h z)`` linearised, so that the term acts at the step's end."""
     B, dev, f64 = xd.shape[0], xd.device, torch.float64
     xs = (R @ T["com"].unsqueeze(-1)).squeeze(-1) + t  # mass centres [B, S, 3]
     fixed = torch.as_tensor(drives.fixed, device=dev)
@@ -862,11 +854,6 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
             rp0 = rp if rp is not None else zero3
             rhs.append(-(torch.linalg.cross(wc, torch.linalg.cross(wc, rc, dim=-1), dim=-1)
                          - torch.linalg.cross(wp, torch.linalg.cross(wp, rp0, dim=-1), dim=-1)))
-            if h is not None and lk.kind != "weld" and "A" in _GX:  # d/dw of -(w x (w x r)) is skew(w x r) + skew(w) skew(r)
-                blk = J[-1].view(B, 3, S, 6)
-                blk[:, :, c, 3:] -= h * (_skew_mat(torch.linalg.cross(wc, rc, dim=-1)) + _skew_mat(wc) @ _skew_mat(rc))
-                if p >= 0:
-                    blk[:, :, p, 3:] += h * (_skew_mat(torch.linalg.cross(wp, rp, dim=-1)) + _skew_mat(wp) @ _skew_mat(rp))
         if lk.kind in ("slide", "weld"):
             J.append(_rows(S, B, xd, c, p, world))
             rhs.append(xd.new_zeros(B, 3))
@@ -874,7 +861,7 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
             D = _world_of(R, t, p, lk.perp)  # [B, 2, 3], turning with the parent
             J.append(_rows(S, B, xd, c, p, D))
             rhs.append((D * torch.linalg.cross(wp, wc - wp, dim=-1).unsqueeze(1)).sum(-1))
-            if h is not None and "P" in _GX:  # d/dw_c of D . (w_p x (w_c - w_p)) is D x w_p, d/dw_p is w_c x D
+            if h is not None:  # d/dw_c of D . (w_p x (w_c - w_p)) is D x w_p, d/dw_p is w_c x D
                 blk = J[-1].view(B, 2, S, 6)
                 blk[:, :, c, 3:] -= h * torch.linalg.cross(D, wp.unsqueeze(1).expand_as(D), dim=-1)
                 if p >= 0:
@@ -891,7 +878,8 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
 
 def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
                                 seg: torch.Tensor, n_obj: int, v: torch.Tensor | None = None,
-                                mass: torch.Tensor | None = None, dt: float | None = None) -> torch.Tensor:
+                                mass: torch.Tensor | None = None, dt: float | None = None,
+                                implicit: bool = False) -> torch.Tensor:
     """Node accelerations [B, N, 3] (m/s^2) of the motors with every joint coupled: MuJoCo's ``M^-1 qfrc_actuator``.
 
     Unlike :func:`motor_accelerations` (the driven joint alone, its parent held) the parent recoils and
@@ -921,6 +909,16 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     velocity term (a hinge or ball anchor: ``-(w_c x (w_c x r_c) - w_p x (w_p x r_p))``; a hinge's
     two cross-axis rows ``p . (w_p x (w_c - w_p))``, the axis turning with the parent; slides without
     theirs). The twists ``w_s`` are the least-squares fits of :func:`mdgs.rigid.twist`.
+
+    ``implicit``: the gyroscopic terms act at the end of the step ``dt`` instead of its start, linearised
+    (one Newton step of the implicit update; Catto 2015, Bullet's implicit gyroscopic force): each moving
+    object's angular block of ``M`` gains ``dt (skew(w_s) I_s^w - skew(I_s^w w_s))``, the gradient of its
+    torque ``w_s x I_s^w w_s``, and each hinge's cross-axis rows ``p . (a_c - a_p) = p . (w_p x (w_c - w_p))`` gain
+    ``-dt`` times that term's gradient in the angular velocities, ``p x w_p`` for the child and
+    ``w_c x p`` for the parent. A rotor spinning fast on a lightly built carrier (rotational-center's
+    gimbal: 90 rad/s, a nutation near 175 rad/s) gains energy without it, in 2.5 ms substeps as well
+    (``benchmarks/mdgs_probes/gyroscopic.py``); the anchors' centripetal terms stay explicit (made
+    implicit too, they cost the user scene's cart and pole 100x at t = 110 on the validation split).
 
     *Contact* with the world's colliding geoms (``drives.surfaces``: planes, boxes, spheres, capsules,
     cylinders; :func:`contacts` lists the candidates): every corner of a colliding box of a moving
@@ -970,7 +968,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         w = tw.omega  # [B, S, 3]
     B, S = x.shape[0], n_obj
     xs, M, ang, J, rhs, rate = _tree(xd, R, t, T, drives, S, w if dynamic else None,
-                                     dt if dynamic and GYRO_IMPLICIT else None)
+                                     dt if dynamic and implicit else None)
     fixed = torch.as_tensor(drives.fixed, device=dev)
     zero3 = xd.new_zeros(B, 3)
 
@@ -996,7 +994,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         L_ = (Iw @ w.unsqueeze(-1)).squeeze(-1)  # angular momenta [B, S, 3]
         gyro = -torch.linalg.cross(w, L_, dim=-1)
         F = F + (moving * torch.cat([T["mass"].view(1, S, 1) * grav.expand(B, S, 3), gyro], -1)).reshape(B, 6 * S)
-        if GYRO_IMPLICIT and "G" in _GX:  # d(w x I w)/dw = skew(w) I - skew(I w), times the step, into each angular block
+        if implicit:  # d(w x I w)/dw = skew(w) I - skew(I w), times the step, into each angular block
             jac = dt * (_skew_mat(w) @ Iw - _skew_mat(L_)) * moving.view(1, S, 1, 1)  # [B, S, 3, 3]
             blk = xd.new_zeros(B, S, 6, 6)
             blk[:, :, 3:, 3:] = jac

@@ -44,7 +44,7 @@ from mdgs.graphs import SceneGraph
 from mdgs.joints import JointSet, joints_of, project_joints
 from mdgs.models.base import ModelError, Simulator, State
 from mdgs.rigid import advance, project, twist
-from mdgs.tree import tree_step
+from mdgs.tree import GYROSCOPIC, tree_step
 
 __all__ = ["ConstantTwist", "ConstantTwistConfig", "MuJoCoReference", "MuJoCoConfig"]
 
@@ -71,6 +71,9 @@ class ConstantTwistConfig:
         kept (:func:`mdgs.actuation.push_out`); the label gains ", push-out".
     substeps : with ``dynamics``, integrate the frame in this many equal substeps (:func:`mdgs.tree.tree_step`;
         the controls held); above 1 the label gains ", N substeps".
+    gyroscopic : with ``dynamics``, "explicit" (the gyroscopic terms at each step's start) or "implicit"
+        (at its end, linearised: each body's gyroscopic torque and a hinge's cross-axis velocity terms,
+        :func:`mdgs.actuation.coupled_motor_accelerations`); "implicit" adds ", implicit gyroscopic" to the label.
     """
 
     motors: bool = False
@@ -80,6 +83,7 @@ class ConstantTwistConfig:
     trapezoidal: bool = False
     push_out: bool = False
     substeps: int = 1
+    gyroscopic: str = "explicit"
 
     def __post_init__(self):
         for k in ("motors", "joints", "coupled", "dynamics", "trapezoidal", "push_out"):
@@ -96,6 +100,10 @@ class ConstantTwistConfig:
             raise ValueError(f"substeps must be a positive integer, got {self.substeps!r}")
         if self.substeps > 1 and not self.dynamics:
             raise ValueError("substeps integrate the rigid tree's forward dynamics; set dynamics = true with them")
+        if self.gyroscopic not in GYROSCOPIC:
+            raise ValueError(f"gyroscopic must be one of {', '.join(map(repr, GYROSCOPIC))}, got {self.gyroscopic!r}")
+        if self.gyroscopic != "explicit" and not self.dynamics:
+            raise ValueError("gyroscopic sets how the rigid tree's forward dynamics steps; set dynamics = true with it")
 
 
 class ConstantTwist(Simulator):
@@ -125,7 +133,8 @@ class ConstantTwist(Simulator):
         m = (~sc.static).to(x.device).view(1, -1, 1)
         if self.config.dynamics:  # the whole tree's forward dynamics, in substeps (mdgs.tree)
             xn, vn = tree_step(x, v, ctrl, self._drives, ref, seg, sc.n_obj, mass, self._dt, self.config.substeps,
-                               self.config.trapezoidal, self.config.push_out, self._joints)
+                               self.config.trapezoidal, self.config.push_out, self._joints,
+                               self.config.gyroscopic == "implicit")
             return State(torch.where(m, xn, x), torch.where(m, vn, torch.zeros_like(vn)))
         tw = twist(x, v, seg, sc.n_obj, mass)
         vc, w = tw.vc, tw.omega
