@@ -112,8 +112,13 @@ SURFACE_KINDS = ("plane", "box", "sphere", "capsule", "cylinder")
 #: landing flat on its face with a slight slip was thrown sideways at metres per second once a frame was short
 #: enough to call its corners sliding: the friction of the impact's push had no bound on what it did to the slip).
 FORWARD_DYNAMICS_REVISION = 1
+#: How a step of the forward dynamics treats the gyroscopic terms (``gyroscopic`` of
+#: :func:`coupled_motor_accelerations`, of the rigid tree and of MDGS's "dynamics" prior): the weight of the step's
+#: end in them, linearised. "explicit": at the step's start (the studies' rule before it existed); "implicit": at
+#: its end (backward Euler, which damps a little); "midpoint": halfway (the linearised trapezoidal rule).
+GYROSCOPIC = {"explicit": 0.0, "implicit": 1.0, "midpoint": 0.5}
 
-__all__ = ["FORWARD_DYNAMICS_REVISION", "Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
+__all__ = ["FORWARD_DYNAMICS_REVISION", "GYROSCOPIC", "Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
            "motor_accelerations", "coupled_motor_accelerations", "contacts", "push_out", "warn_unseen"]
 
 
@@ -823,7 +828,7 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
     inertias ``ang`` [B, S, 3, 3], the rows ``J`` (a list of [B, k, 6S]: the world's elements held, each
     link's) with their right-hand sides ``rhs`` (list of [B, k]: the velocity terms of the twists ``w``
     [B, S, 3], zero without them) and ``rate`` (child object -> its hinge's or slide's rate row [B, 1, 6S]).
-    With a step ``h`` (``implicit`` of :func:`coupled_motor_accelerations`), each of a hinge's two cross-axis
+    With a step ``h`` (``gyroscopic`` of :func:`coupled_motor_accelerations`), each of a hinge's two cross-axis
     rows is less ``h`` times its velocity term's gradient in the twists' angular velocities, the row of
     ``J z = rhs(w + h z)`` linearised, so that the term acts at the step's end."""
     B, dev, f64 = xd.shape[0], xd.device, torch.float64
@@ -879,7 +884,7 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
 def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
                                 seg: torch.Tensor, n_obj: int, v: torch.Tensor | None = None,
                                 mass: torch.Tensor | None = None, dt: float | None = None,
-                                implicit: bool = False) -> torch.Tensor:
+                                gyroscopic: str = "explicit") -> torch.Tensor:
     """Node accelerations [B, N, 3] (m/s^2) of the motors with every joint coupled: MuJoCo's ``M^-1 qfrc_actuator``.
 
     Unlike :func:`motor_accelerations` (the driven joint alone, its parent held) the parent recoils and
@@ -910,12 +915,13 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     two cross-axis rows ``p . (w_p x (w_c - w_p))``, the axis turning with the parent; slides without
     theirs). The twists ``w_s`` are the least-squares fits of :func:`mdgs.rigid.twist`.
 
-    ``implicit``: the gyroscopic terms act at the end of the step ``dt`` instead of its start, linearised
-    (one Newton step of the implicit update; Catto 2015, Bullet's implicit gyroscopic force): each moving
-    object's angular block of ``M`` gains ``dt (skew(w_s) I_s^w - skew(I_s^w w_s))``, the gradient of its
-    torque ``w_s x I_s^w w_s``, and each hinge's cross-axis rows ``p . (a_c - a_p) = p . (w_p x (w_c - w_p))`` gain
-    ``-dt`` times that term's gradient in the angular velocities, ``p x w_p`` for the child and
-    ``w_c x p`` for the parent. A rotor spinning fast on a lightly built carrier (rotational-center's
+    ``gyroscopic`` ("explicit", "implicit", "midpoint": ``GYROSCOPIC``): the gyroscopic terms act at the start
+    of the step ``dt``, or, linearised, at its end or halfway (one Newton step of the implicit update; Catto
+    2015, Bullet's implicit gyroscopic force): with ``h`` = ``dt`` or ``dt / 2``, each moving object's angular
+    block of ``M`` gains ``h (skew(w_s) I_s^w - skew(I_s^w w_s))``, the gradient of its torque
+    ``w_s x I_s^w w_s``, and each hinge's cross-axis rows ``p . (a_c - a_p) = p . (w_p x (w_c - w_p))`` gain
+    ``-h`` times that term's gradient in the angular velocities, ``p x w_p`` for the child and ``w_c x p``
+    for the parent. A rotor spinning fast on a lightly built carrier (rotational-center's
     gimbal: 90 rad/s, a nutation near 175 rad/s) gains energy without it, in 2.5 ms substeps as well
     (``benchmarks/mdgs_probes/gyroscopic.py``); the anchors' centripetal terms stay explicit (made
     implicit too, they cost the user scene's cart and pole 100x at t = 110 on the validation split).
@@ -967,8 +973,10 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         tw = twist(xd, v, seg, n_obj, mass.to(dev))
         w = tw.omega  # [B, S, 3]
     B, S = x.shape[0], n_obj
-    xs, M, ang, J, rhs, rate = _tree(xd, R, t, T, drives, S, w if dynamic else None,
-                                     dt if dynamic and implicit else None)
+    if gyroscopic not in GYROSCOPIC:
+        raise ValueError(f"gyroscopic must be one of {', '.join(map(repr, GYROSCOPIC))}, got {gyroscopic!r}")
+    h = GYROSCOPIC[gyroscopic] * dt if dynamic and GYROSCOPIC[gyroscopic] else None  # the step to the terms' time
+    xs, M, ang, J, rhs, rate = _tree(xd, R, t, T, drives, S, w if dynamic else None, h)
     fixed = torch.as_tensor(drives.fixed, device=dev)
     zero3 = xd.new_zeros(B, 3)
 
@@ -994,8 +1002,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         L_ = (Iw @ w.unsqueeze(-1)).squeeze(-1)  # angular momenta [B, S, 3]
         gyro = -torch.linalg.cross(w, L_, dim=-1)
         F = F + (moving * torch.cat([T["mass"].view(1, S, 1) * grav.expand(B, S, 3), gyro], -1)).reshape(B, 6 * S)
-        if implicit:  # d(w x I w)/dw = skew(w) I - skew(I w), times the step, into each angular block
-            jac = dt * (_skew_mat(w) @ Iw - _skew_mat(L_)) * moving.view(1, S, 1, 1)  # [B, S, 3, 3]
+        if h is not None:  # d(w x I w)/dw = skew(w) I - skew(I w), times the step h, into each angular block
+            jac = h * (_skew_mat(w) @ Iw - _skew_mat(L_)) * moving.view(1, S, 1, 1)  # [B, S, 3, 3]
             blk = xd.new_zeros(B, S, 6, 6)
             blk[:, :, 3:, 3:] = jac
             M = M + torch.einsum("bsij,st->bsitj", blk, torch.eye(S, dtype=f64, device=dev)).reshape(B, 6 * S, 6 * S)

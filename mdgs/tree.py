@@ -20,28 +20,24 @@ from mdgs.actuation import DriveSet, coupled_motor_accelerations, push_out
 from mdgs.joints import JointSet, project_joints
 from mdgs.rigid import advance, project, twist
 
-__all__ = ["GYROSCOPIC", "tree_step"]
-
-#: How a step treats the gyroscopic terms (``gyroscopic`` of the rigid tree and of MDGS's "dynamics" prior): at
-#: its start, or at its end, linearised (``implicit`` of :func:`mdgs.actuation.coupled_motor_accelerations`).
-GYROSCOPIC = ("explicit", "implicit")
+__all__ = ["tree_step"]
 
 
 def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
               seg: torch.Tensor, n_obj: int, mass: torch.Tensor, dt: float, substeps: int = 1,
               trapezoidal: bool = False, pushed_out: bool = False,
-              joints: JointSet | None = None, implicit: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+              joints: JointSet | None = None, gyroscopic: str = "explicit") -> tuple[torch.Tensor, torch.Tensor]:
     """``x', v'`` [B, N, 3] of the rigid tree after ``dt`` in ``substeps`` equal substeps (module docstring).
 
     ``ctrl`` [B, nu]; ``ref`` [N, 3] the nodes in their bodies' frames (:attr:`mdgs.graphs.SceneGraph.ref_shape`),
     ``seg`` [N] their objects, ``mass`` [N]; ``pushed_out``: out of the surfaces after every substep;
-    ``joints``: projected onto them after every substep; ``implicit``: the gyroscopic terms at each
-    substep's end (:func:`mdgs.actuation.coupled_motor_accelerations`). Static nodes are moved like any
-    other: the caller keeps them in place."""
+    ``joints``: projected onto them after every substep; ``gyroscopic``: when in each substep the gyroscopic
+    terms act (:data:`mdgs.actuation.GYROSCOPIC`). Static nodes are moved like any other: the caller keeps them
+    in place."""
     h = dt / substeps
     for _ in range(substeps):
         tw = twist(x, v, seg, n_obj, mass)
-        acc = coupled_motor_accelerations(x, ctrl, drives, ref, seg, n_obj, v=v, mass=mass, dt=h, implicit=implicit)
+        acc = coupled_motor_accelerations(x, ctrl, drives, ref, seg, n_obj, v=v, mass=mass, dt=h, gyroscopic=gyroscopic)
         dvc, dw = project(acc * h, x, tw, seg, n_obj, mass)
         x, v = advance(x, tw, tw.vc + dvc, tw.omega + dw, h, seg, trapezoidal=trapezoidal)
         if pushed_out:

@@ -801,21 +801,26 @@ def test_finer_partitions_get_their_own_references_and_the_resolution_ratio_uses
     assert _resolution_table(lines[:1] + lines[2:]).rows[1][col] == "-"  # no refine-2 reference yet: no ratio
 
 
-def test_rigid_tree_implicit_adds_the_last_rigid_tree_row_with_implicit_gyroscopic_terms(tmp_path):
-    """``[references] rigid_tree_implicit = true`` adds one reference row per scene, the last rigid-tree row with
-    ``gyroscopic = "implicit"``, labelled as the reference names itself; the other cells keep their keys; it
-    needs ``rigid_tree``."""
+def test_rigid_tree_gyroscopic_adds_the_last_rigid_tree_row_with_each_rule_of_the_gyroscopic_terms(tmp_path):
+    """``[references] rigid_tree_gyroscopic = ["implicit", "midpoint"]`` adds, per scene, the last rigid-tree row with
+    each rule (``ConstantTwistConfig.gyroscopic``), labelled as the reference names itself; the other cells keep
+    their keys; it needs ``rigid_tree`` and known, distinct rules."""
     from mdgs.evaluate import reference_label
 
     base = GOOD + ("[references]\njoints = true\nrigid_tree = true\nrigid_tree_trapezoidal = true\n"
                    "rigid_tree_push_out = true\nrigid_tree_substeps = [4]\n")
     study = load_study(_write(tmp_path, base))
-    more = load_study(_write(tmp_path, base + "rigid_tree_implicit = true\n"))
+    more = load_study(_write(tmp_path, base + 'rigid_tree_gyroscopic = ["implicit", "midpoint"]\n'))
     new = [c for c in cells_of(more) if c.key(more) not in {k.key(study) for k in cells_of(study)}]
-    assert {c.label for c in new} == {"rigid tree + joints, trapezoidal, push-out, 4 substeps, implicit gyroscopic"}
-    assert len(new) == len({c.scene.name for c in new}) == len(study.scenes)
+    last = "rigid tree + joints, trapezoidal, push-out, 4 substeps"
+    assert {c.label for c in new} == {f"{last}, implicit gyroscopic", f"{last}, midpoint gyroscopic"}
+    assert len(new) == 2 * len(study.scenes)
     ct = MODELS["constant-twist"]
-    assert reference_label(ct(ct.Config(**dict(new[0].settings)))) == new[0].label
-    assert dict(new[0].settings)["gyroscopic"] == "implicit"
-    with pytest.raises(StudyError, match="rigid_tree_implicit"):
-        load_study(_write(tmp_path, GOOD + "[references]\nrigid_tree_implicit = true\n"))
+    for c in new:
+        assert reference_label(ct(ct.Config(**dict(c.settings)))) == c.label
+    for bad in ('rigid_tree_gyroscopic = ["sideways"]\n', 'rigid_tree_gyroscopic = ["explicit"]\n',
+                'rigid_tree_gyroscopic = ["implicit", "implicit"]\n'):
+        with pytest.raises(StudyError, match="rigid_tree_gyroscopic"):
+            load_study(_write(tmp_path, base + bad))
+    with pytest.raises(StudyError, match="set rigid_tree = true"):
+        load_study(_write(tmp_path, GOOD + '[references]\nrigid_tree_gyroscopic = ["implicit"]\n'))

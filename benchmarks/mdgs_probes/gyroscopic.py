@@ -6,8 +6,8 @@ flight energy on rotational-center, then the trapezoidal tree's rollouts on a sp
 DATA_FOLDER is a study's ``data/``. First, on rotational-center's split: each of its first four trajectories'
 starting state lifted 10 m, no controls, in 4 substeps a frame, the energy every 20 frames over 120 frames
 (as ``substeps.py``: the sum over bodies of ``M |v_c|^2 / 2 + w . I w / 2 + M g z_c``, conserved in free
-flight, so what it gains is the integrator's error), with the terms explicit (each step's start) and
-implicit (its end, linearised: :func:`mdgs.actuation.coupled_motor_accelerations`). Then, for each SCENE (default: the three study scenes), the "rigid tree + joints, trapezoidal,
+flight, so what it gains is the integrator's error), with the terms explicit (each step's start), implicit
+(its end) and midpoint (halfway), linearised (:func:`mdgs.actuation.coupled_motor_accelerations`). Then, for each SCENE (default: the three study scenes), the "rigid tree + joints, trapezoidal,
 push-out, 4 substeps" reference (``studies/mdgs-substeps.toml``'s) with each rule: position MSE at t = 40 and
 t = 110 (10^-3 m^2; mean and median over the trajectories that did not diverge) and how many diverged.
 Which terms the implicit setting takes was decided with this probe on the validation split at commit 05ac8f8,
@@ -33,7 +33,7 @@ torch.set_num_threads(1)
 ct = MODELS["constant-twist"]
 root, split = Path(sys.argv[1]), sys.argv[2]
 scenes = sys.argv[3:] or ["rotational-center", "cubli-triple", "hinge_slide_free"]
-RULES = ("explicit", "implicit")
+RULES = ("explicit", "implicit", "midpoint")
 
 d = load_split(root / "rotational-center" / f"{split}.h5")
 sc = SceneGraph.from_static(d.static, has_contact=d.has_contact)

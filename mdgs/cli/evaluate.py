@@ -30,16 +30,19 @@ def _parse_reference(text: str) -> tuple[str, dict]:
                 fail(f"--reference {text}: write substeps=N once, N a positive integer, with dynamics "
                      f"(e.g. constant-twist:dynamics+joints+trapezoidal+substeps=4)")
             n = int(sub[0][9:])
-        implicit = "implicit-gyroscopic" in parts
-        parts = [p for p in parts if p != "implicit-gyroscopic"]
-        if implicit and "dynamics" not in parts:
-            fail(f"--reference {text}: implicit-gyroscopic sets how the rigid tree steps; write dynamics+implicit-gyroscopic")
+        gyro = [p[: -len("-gyroscopic")] for p in parts if p.endswith("-gyroscopic")]
+        parts = [p for p in parts if not p.endswith("-gyroscopic")]
+        if len(gyro) > 1 or (gyro and gyro[0] not in ("implicit", "midpoint")):
+            fail(f"--reference {text}: write one of implicit-gyroscopic or midpoint-gyroscopic")
+        if gyro and "dynamics" not in parts:
+            fail(f"--reference {text}: {gyro[0]}-gyroscopic sets how the rigid tree steps; write dynamics+{gyro[0]}-gyroscopic")
         if not set(parts) <= {"motors", "joints", "coupled", "dynamics", "trapezoidal", "push-out"} or len(set(parts)) != len(parts):
             fail(f"--reference {text}: constant-twist takes motors, joints or motors+joints, coupled "
                  f"with motors, or dynamics (e.g. constant-twist:motors+joints, constant-twist:motors+coupled+joints, "
                  f"constant-twist:dynamics+joints, +trapezoidal to move with the mean of the old and new twist, "
                  f"+push-out with dynamics to move the tree out of the world's surfaces after every step, "
-                 f"+implicit-gyroscopic with dynamics for gyroscopic terms at each step's end)")
+                 f"+implicit-gyroscopic or +midpoint-gyroscopic with dynamics for gyroscopic terms at each step's end "
+                 f"or halfway)")
         if "coupled" in parts and "motors" not in parts:
             fail(f"--reference {text}: coupled is a form of the motors' response; write motors+coupled")
         if "dynamics" in parts and {"motors", "coupled"} & set(parts):
@@ -47,7 +50,7 @@ def _parse_reference(text: str) -> tuple[str, dict]:
         if "push-out" in parts and "dynamics" not in parts:
             fail(f"--reference {text}: push-out moves the rigid tree out of the surfaces; write dynamics+push-out")
         return name, ({k.replace("-", "_"): True for k in parts} | ({"substeps": n} if n > 1 else {})
-                      | ({"gyroscopic": "implicit"} if implicit else {}))
+                      | ({"gyroscopic": gyro[0]} if gyro else {}))
     if arg:
         fail(f"--reference {text}: {name} takes no setting")
     return name, {}
@@ -76,7 +79,7 @@ def evaluate_cmd(
                                              "+coupled the motors' response of the whole tree (parents recoiling), "
                                              "constant-twist:dynamics+joints (the rigid tree: the MJCF's forward dynamics "
                                              "with contact and limits, one step per frame; append "
-                                             "+trapezoidal, +push-out, +substeps=N or +implicit-gyroscopic, e.g. "
+                                             "+trapezoidal, +push-out, +substeps=N, +implicit-gyroscopic or +midpoint-gyroscopic, e.g. "
                                              "constant-twist:dynamics+joints+trapezoidal+push-out+substeps=4); "
                                              "repeatable. constant-twist "
                                              "is always included."),

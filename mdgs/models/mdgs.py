@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from mdgs.actuation import (
+    GYROSCOPIC,
     DriveSet,
     actuation_forces,
     coupled_motor_accelerations,
@@ -55,7 +56,7 @@ from mdgs.models.integrators import INTEGRATORS
 from mdgs.models.layers import GCN
 from mdgs.rigid import advance, perturb, project, twist
 from mdgs.structure import align_with_pose
-from mdgs.tree import GYROSCOPIC, tree_step
+from mdgs.tree import tree_step
 
 __all__ = ["MDGSConfig", "ModelConfig", "VARIANTS", "Prediction", "MDGS", "MDGSNoConstraint",
            "MDGSSingleSpeed", "noise_sigmas", "CUBLI_NOISE", "INCREMENT_NOISE"]
@@ -198,10 +199,9 @@ class MDGSConfig:
         velocity part changes each object's twist, moving it by the change times dt/2 (trapezoidal) or dt,
         its position part moves it rigidly. Untrained, MDGS is then the "rigid tree + joints, N substeps"
         reference.
-    gyroscopic : with ``actuation = "dynamics"``, how the rigid tree's steps treat the gyroscopic terms
-        (:data:`mdgs.tree.GYROSCOPIC`): "explicit" at each step's start, or "implicit" at its end, linearised
-        (:func:`mdgs.actuation.coupled_motor_accelerations`), so that a rotor spun fast on a light carrier does
-        not gain energy.
+    gyroscopic : with ``actuation = "dynamics"``, when in each of the rigid tree's steps the gyroscopic terms
+        act (:data:`mdgs.actuation.GYROSCOPIC`): "explicit" at its start, "implicit" at its end or "midpoint"
+        halfway, linearised, so that a rotor spun fast on a light carrier does not gain energy.
     scales : where the scales left at 1.0 (``dx_scale``, ``dv_scale`` and, with ``object_scales``, the
         per-object ones) come from: "increments" (the std of the frame's increments under the integrator,
         as without priors g predicts them) or "residual" (what g must add to its zero output, that is to
@@ -871,14 +871,14 @@ class MDGS(Simulator):
             seg, mass, ref = scene.obj.to(dev), scene.mass.to(dev), scene.ref_shape.to(dev)
             xp, vp = tree_step(x.detach(), v.detach(), ctrl, self._drives, ref, seg, scene.n_obj, mass, c.dt,
                                c.prior_substeps, c.trapezoidal, c.push_out, self._joints if c.joints else None,
-                               c.gyroscopic == "implicit")
+                               c.gyroscopic)
             m = scene.moving(dev).view(1, -1, 1)
             priors.append(PriorState(torch.where(m, xp, x.detach()), torch.where(m, vp, torch.zeros_like(vp))))
         elif c.actuation == "dynamics" and ctrl is not None:  # the whole tree's forward dynamics over dt
             seg, mass = scene.obj.to(dev), scene.mass.to(dev)
             priors.append(c.dt * coupled_motor_accelerations(x.detach(), ctrl, self._drives, scene.ref_shape.to(dev),
                                                              seg, scene.n_obj, v=v.detach(), mass=mass, dt=c.dt,
-                                                             implicit=c.gyroscopic == "implicit"))
+                                                             gyroscopic=c.gyroscopic))
         elif self._drives and ctrl is not None and c.actuation in ("step", "prior", "coupled"):
             # the pose enters without gradient (its Kabsch SVD has none for symmetric bodies; only an
             # unrolled training step, whose x carries one, would differentiate it)

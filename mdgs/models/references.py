@@ -33,6 +33,7 @@ import numpy as np
 import torch
 
 from mdgs.actuation import (
+    GYROSCOPIC,
     DriveSet,
     coupled_motor_accelerations,
     drives_of,
@@ -44,7 +45,7 @@ from mdgs.graphs import SceneGraph
 from mdgs.joints import JointSet, joints_of, project_joints
 from mdgs.models.base import ModelError, Simulator, State
 from mdgs.rigid import advance, project, twist
-from mdgs.tree import GYROSCOPIC, tree_step
+from mdgs.tree import tree_step
 
 __all__ = ["ConstantTwist", "ConstantTwistConfig", "MuJoCoReference", "MuJoCoConfig"]
 
@@ -71,9 +72,9 @@ class ConstantTwistConfig:
         kept (:func:`mdgs.actuation.push_out`); the label gains ", push-out".
     substeps : with ``dynamics``, integrate the frame in this many equal substeps (:func:`mdgs.tree.tree_step`;
         the controls held); above 1 the label gains ", N substeps".
-    gyroscopic : with ``dynamics``, "explicit" (the gyroscopic terms at each step's start) or "implicit"
-        (at its end, linearised: each body's gyroscopic torque and a hinge's cross-axis velocity terms,
-        :func:`mdgs.actuation.coupled_motor_accelerations`); "implicit" adds ", implicit gyroscopic" to the label.
+    gyroscopic : with ``dynamics``, "explicit" (the gyroscopic terms at each step's start), "implicit" (at its
+        end) or "midpoint" (halfway), linearised: each body's gyroscopic torque and a hinge's cross-axis velocity
+        terms (:data:`mdgs.actuation.GYROSCOPIC`); the label gains ", implicit gyroscopic" or ", midpoint gyroscopic".
     """
 
     motors: bool = False
@@ -134,7 +135,7 @@ class ConstantTwist(Simulator):
         if self.config.dynamics:  # the whole tree's forward dynamics, in substeps (mdgs.tree)
             xn, vn = tree_step(x, v, ctrl, self._drives, ref, seg, sc.n_obj, mass, self._dt, self.config.substeps,
                                self.config.trapezoidal, self.config.push_out, self._joints,
-                               self.config.gyroscopic == "implicit")
+                               self.config.gyroscopic)
             return State(torch.where(m, xn, x), torch.where(m, vn, torch.zeros_like(vn)))
         tw = twist(x, v, seg, sc.n_obj, mass)
         vc, w = tw.vc, tw.omega

@@ -47,8 +47,8 @@ A study file has these tables (every key optional unless marked; defaults in the
     rigid_tree_push_out = true          # also "rigid tree + joints, trapezoidal, push-out" (default false): the
                                         # trapezoidal tree moved out of the world's surfaces after every step
     rigid_tree_substeps = [4]           # also the last rigid tree row in N substeps a frame, for each N (default [])
-    rigid_tree_implicit = true          # also the last rigid tree row with its gyroscopic terms implicit (default
-                                        # false; ConstantTwistConfig.gyroscopic = "implicit")
+    rigid_tree_gyroscopic = ["implicit"] # also the last rigid tree row with its gyroscopic terms at each step's end
+                                        # or halfway ("midpoint"), for each (default []; ConstantTwistConfig.gyroscopic)
 
     [resolution]                        # MDGS error and cost against the element resolution
     model = "mdgs"                      # a registry name, or the label of a [[models]] row (its settings)
@@ -67,6 +67,7 @@ import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from mdgs.actuation import GYROSCOPIC
 from mdgs.train.loop import SELECT
 
 __all__ = ["StudyError", "SceneEntry", "ModelEntry", "Budget", "StudyConfig", "load_study"]
@@ -141,7 +142,7 @@ class StudyConfig:
     rigid_tree_trapezoidal: bool = False
     rigid_tree_push_out: bool = False
     rigid_tree_substeps: tuple[int, ...] = ()
-    rigid_tree_implicit: bool = False
+    rigid_tree_gyroscopic: tuple[str, ...] = ()
     resolution_model: str = "mdgs"
     resolution_label: str = "mdgs"
     resolution_settings: tuple[tuple[str, object], ...] = ()
@@ -304,7 +305,7 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
 
     rf = _take(doc, "references", dict, f, {})
     _unknown(rf, {"mujoco_dt_factors", "motors", "joints", "rigid_tree", "rigid_tree_trapezoidal",
-                  "rigid_tree_push_out", "rigid_tree_substeps", "rigid_tree_implicit"}, f"{f} [references]")
+                  "rigid_tree_push_out", "rigid_tree_substeps", "rigid_tree_gyroscopic"}, f"{f} [references]")
     dts = _ints(rf, "mujoco_dt_factors", f"{f} [references]", (1, 2, 5, 10, 20), lo=1)
     motors = _take(rf, "motors", bool, f"{f} [references]", False)
     joints = _take(rf, "joints", bool, f"{f} [references]", False)
@@ -314,9 +315,12 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
     rigid_sub = _ints(rf, "rigid_tree_substeps", f"{f} [references]", (), lo=2)
     if rigid_sub and not rigid_tree:
         raise StudyError(f"{f} [references]: rigid_tree_substeps steps the rigid tree; set rigid_tree = true with it")
-    rigid_implicit = _take(rf, "rigid_tree_implicit", bool, f"{f} [references]", False)
-    if rigid_implicit and not rigid_tree:
-        raise StudyError(f"{f} [references]: rigid_tree_implicit steps the rigid tree; set rigid_tree = true with it")
+    rigid_gyro = tuple(_take(rf, "rigid_tree_gyroscopic", list, f"{f} [references]", []))
+    rules = [g for g in GYROSCOPIC if g != "explicit"]
+    if any(g not in rules for g in rigid_gyro) or len(set(rigid_gyro)) != len(rigid_gyro):
+        raise StudyError(f"{f} [references]: rigid_tree_gyroscopic lists distinct rules of {rules}, got {list(rigid_gyro)}")
+    if rigid_gyro and not rigid_tree:
+        raise StudyError(f"{f} [references]: rigid_tree_gyroscopic steps the rigid tree; set rigid_tree = true with it")
 
     rs = _take(doc, "resolution", dict, f, {})
     where = f"{f} [resolution]"
@@ -336,6 +340,6 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
                        models=tuple(models), mujoco_dt_factors=dts, motor_twist=motors, joint_twist=joints,
                        rigid_tree=rigid_tree, rigid_tree_trapezoidal=rigid_trap,
                        rigid_tree_push_out=rigid_push, rigid_tree_substeps=rigid_sub,
-                       rigid_tree_implicit=rigid_implicit,
+                       rigid_tree_gyroscopic=rigid_gyro,
                        resolution_model=rmodel, resolution_label=rlabel, resolution_settings=rsettings,
                        resolution_refine=refine, resolution_seeds=_ints(rs, "seeds", where, (0,)))

@@ -158,10 +158,10 @@ def _reference_cells(study: StudyConfig, sc: SceneEntry, refine: int = 1) -> lis
         _, last, settings = specs[-1]
         specs += [("constant-twist", f"{last}, {n} substeps", tuple(sorted(settings + (("substeps", n),))))
                   for n in study.rigid_tree_substeps]
-    if study.rigid_tree_implicit:  # the last rigid tree row with its gyroscopic terms implicit
+    if study.rigid_tree_gyroscopic:  # the last rigid tree row with its gyroscopic terms later in each step
         _, last, settings = specs[-1]
-        specs.append(("constant-twist", f"{last}, implicit gyroscopic",
-                      tuple(sorted(settings + (("gyroscopic", "implicit"),)))))
+        specs += [("constant-twist", f"{last}, {g} gyroscopic", tuple(sorted(settings + (("gyroscopic", g),))))
+                  for g in study.rigid_tree_gyroscopic]
     specs += [("mujoco", f"mujoco dt x{k}", (("dt_factor", k),)) for k in study.mujoco_dt_factors]
     return [Cell("reference", sc, model, label + tail, settings, refine=refine) for model, label, settings in specs]
 
