@@ -645,6 +645,23 @@ def test_who_wins_names_the_front_the_winners_and_the_coarsest_mujoco_that_beats
     assert row[5].startswith("mujoco dt x2 ")  # x1 is as accurate too, but finer
 
 
+def test_a_row_with_fewer_seeds_than_the_others_is_shown_as_partial_and_never_ranked():
+    """A learned row that has run one seed where the others ran two (a row still running) has the lowest mean,
+    yet it is not bold in Table 1's layout, its cells say "[1 of 2 seeds]", and "Who wins" names the complete
+    row as the best learned one."""
+    from mdgs.study.tables import _model_table, _verdict_table
+
+    lines = [_line("reference", "constant-twist", "constant twist", 0, [1.0, 1.0], [2.0, 2.0], 0.4)]
+    lines += [_line("learned", "a", "a", s, [0.5, 0.5], [1.0, 1.0], 1.0) for s in (0, 1)]
+    lines += [_line("learned", "b", "b", 0, [0.1, 0.1], [0.2, 0.2], 1.0)]
+    table = _model_table("Table", lines, ["s"])[0]
+    a, b = table.rows[0], table.rows[1]
+    assert a[1].startswith("**") and not b[1].startswith("**") and "<u>" not in b[1]
+    assert b[1].endswith("[1 of 2 seeds]") and b[2].endswith("[1 of 2 seeds]") and "seeds]" not in a[1]
+    (row,) = _verdict_table(lines).rows
+    assert row[2].startswith("a: ") and row[3].startswith("a: ") and row[4] == "a"
+
+
 def _committed_small_tables():
     folder = Path(__file__).resolve().parents[1] / "docs" / "results" / "small"
     return {t.title: t for t in build_tables(read_results(folder, usable=True))}

@@ -196,6 +196,18 @@ def _ratio_cell(lns, refs, set_name, t):
     return f"{arr.mean():.3g}" + (f" +- {arr.std(ddof=1):.2g}" if len(arr) > 1 else "")
 
 
+def _full_seeds(learned: dict, scene: str) -> int:
+    """The most seeds any learned row of ``learned`` (:func:`_rows_by_label`) has run on ``scene``: a row with
+    fewer is still running (or was never finished) and is not yet a row to rank."""
+    return max((len({ln["seed"] for ln in by_scene.get(scene, [])}) for by_scene in learned.values()), default=0)
+
+
+def _partial(lns: list[dict], full: int) -> str:
+    """``" [k of n seeds]"`` for a learned cell of ``lns`` with fewer seeds than ``full``; else ``""``."""
+    k = len({ln["seed"] for ln in lns})
+    return f" [{k} of {full} seeds]" if 0 < k < full else ""
+
+
 def _mark_best(rows: list[list[str]], values: list[list[float | None]], n_learned: int) -> None:
     """Bold the best, underline the second-best learned value of each column (lower is better)."""
     for j in range(len(values[0]) if values else 0):
@@ -271,16 +283,19 @@ def _model_table(title, lines, scenes, note_extra="") -> list[Table]:
     rows, plain, values = [], [], []
     ratio_rows = []
     refs_by_scene = {sc: [ln for ln in lines if ln["kind"] == "reference" and ln["scene"] == sc] for sc in scenes}
+    full = {sc: _full_seeds(learned, sc) for sc in scenes}
     for (label, _), by_scene in learned.items():
         row, pl, vals, rr = [label], [label], [], [label]
         for t in TIMES:
             for sc in scenes:
                 c = _cell(by_scene.get(sc, []), "test", t)
-                txt = "-" if c is None else _fmt(c[0], c[1], c[2], c[3])
+                part = _partial(by_scene.get(sc, []), full[sc])  # a row still running: shown, never ranked
+                txt = "-" if c is None else _fmt(c[0], c[1], c[2], c[3]) + part
                 row.append(txt)
                 pl.append(txt)
-                vals.append(None if c is None else c[0])
-                rr.append(_ratio_cell(by_scene.get(sc, []), refs_by_scene[sc], "test", t) or "-")
+                vals.append(None if c is None or part else c[0])
+                ratio = _ratio_cell(by_scene.get(sc, []), refs_by_scene[sc], "test", t)
+                rr.append(ratio + part if ratio and ratio != "-" else ratio or "-")
         rows.append(row)
         plain.append(pl)
         values.append(vals)
@@ -290,7 +305,8 @@ def _model_table(title, lines, scenes, note_extra="") -> list[Table]:
         rows.append(row)
         plain.append(pl)
     note = ("Position MSE in 10^-3 m^2 over moving nodes; mean +- std over seeds; (k/n): trajectories not "
-            "failed / all, summed over seeds; best learned row in bold, second underlined; references "
+            "failed / all, summed over seeds; [k of n seeds]: a row that has run fewer seeds than the others "
+            "(still running), never marked best; best learned row in bold, second underlined; references "
             "below. " + note_extra)
     t1 = Table(title, header, rows, note, plain)
     t2 = Table(f"{title}, x constant twist on the same trajectories", header, ratio_rows,
@@ -379,12 +395,13 @@ def _verdict_table(lines) -> Table | None:
         pts = _points(lines, scene)
         front = sorted(_pareto(pts), key=lambda k: pts[k][1])
         best, beats = {}, {}
+        full = _full_seeds(learned, scene)
         for t in TIMES:
             cand = []
             for (label, _), by_scene in learned.items():
                 c = _cell(by_scene[scene], "test", t)
-                if c is None or c[0] is None or c[2] < c[3]:  # failed somewhere: not a winner at t
-                    continue
+                if c is None or c[0] is None or c[2] < c[3] or _partial(by_scene[scene], full):
+                    continue  # failed somewhere, or still running: not a winner at t
                 cand.append((c[0], label, _ratio_mean(by_scene[scene], refs, t)))
             best[t] = min(cand) if cand else None
             beats[t] = {label for _, label, r in cand if r is not None and r < 1.0}
@@ -408,7 +425,7 @@ def _verdict_table(lines) -> Table | None:
     note = ("Read from the tables above and the speed-accuracy chart: the Pareto front holds the rows no other "
             "row beats on both cost (one trajectory, ms per simulated frame) and t=110 error (a row that failed on "
             "some trajectory is never on it); a best learned row is the lowest mean among the learned rows that "
-            "finished every test trajectory; \"below constant twist\": the mean over seeds of the ratio to the "
+            "finished every test trajectory with every seed the others ran; \"below constant twist\": the mean over seeds of the ratio to the "
             "plain constant-twist reference on the same trajectories is below 1 at both horizons.")
     return Table("Who wins, per scene", header, rows, note, rows)
 
