@@ -924,7 +924,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     for the parent. A rotor spinning fast on a lightly built carrier (rotational-center's
     gimbal: 90 rad/s, a nutation near 175 rad/s) gains energy without it, in 2.5 ms substeps as well
     (``benchmarks/mdgs_probes/gyroscopic.py``); the anchors' centripetal terms stay explicit (made
-    implicit too, they cost the user scene's cart and pole 100x at t = 110 on the validation split).
+    implicit too, they cost the user scene's cart and pole 130x at t = 110 on the validation split).
 
     *Contact* with the world's colliding geoms (``drives.surfaces``: planes, boxes, spheres, capsules,
     cylinders; :func:`contacts` lists the candidates): every corner of a colliding box of a moving
