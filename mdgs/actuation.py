@@ -118,7 +118,15 @@ FORWARD_DYNAMICS_REVISION = 1
 #: its end (backward Euler, which damps a little); "midpoint": halfway (the linearised trapezoidal rule).
 GYROSCOPIC = {"explicit": 0.0, "implicit": 1.0, "midpoint": 0.5}
 
-__all__ = ["FORWARD_DYNAMICS_REVISION", "GYROSCOPIC", "Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
+
+def gyroscopic_weight(rule: str) -> float:
+    """The weight of the step's end in the gyroscopic terms under ``rule`` (``GYROSCOPIC``); a rule it does not
+    know raises ``ValueError`` naming the rules (the configs of the rigid tree and of MDGS check theirs with it)."""
+    if rule not in GYROSCOPIC:
+        raise ValueError(f"gyroscopic must be one of {', '.join(map(repr, GYROSCOPIC))}, got {rule!r}")
+    return GYROSCOPIC[rule]
+
+__all__ = ["FORWARD_DYNAMICS_REVISION", "GYROSCOPIC", "gyroscopic_weight", "Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
            "motor_accelerations", "coupled_motor_accelerations", "contacts", "push_out", "warn_unseen"]
 
 
@@ -973,9 +981,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         tw = twist(xd, v, seg, n_obj, mass.to(dev))
         w = tw.omega  # [B, S, 3]
     B, S = x.shape[0], n_obj
-    if gyroscopic not in GYROSCOPIC:
-        raise ValueError(f"gyroscopic must be one of {', '.join(map(repr, GYROSCOPIC))}, got {gyroscopic!r}")
-    h = GYROSCOPIC[gyroscopic] * dt if dynamic and GYROSCOPIC[gyroscopic] else None  # the step to the terms' time
+    weight = gyroscopic_weight(gyroscopic)
+    h = weight * dt if dynamic and weight else None  # the step to the terms' time
     xs, M, ang, J, rhs, rate = _tree(xd, R, t, T, drives, S, w if dynamic else None, h)
     fixed = torch.as_tensor(drives.fixed, device=dev)
     zero3 = xd.new_zeros(B, 3)

@@ -31,11 +31,11 @@ import numpy as np
 import torch
 
 from mdgs.actuation import (
-    GYROSCOPIC,
     DriveSet,
     actuation_forces,
     coupled_motor_accelerations,
     drives_of,
+    gyroscopic_weight,
     motor_accelerations,
     push_out,
     warn_unseen,
@@ -325,8 +325,7 @@ class MDGSConfig:
         if self.prior_substeps > 1 and (self.actuation != "dynamics" or self.integrator != "rigid"):
             raise ValueError("prior_substeps > 1 steps the rigid tree of the \"dynamics\" prior, whose end state the "
                              "\"rigid\" integrator corrects; set actuation = \"dynamics\" and integrator = \"rigid\"")
-        if self.gyroscopic not in GYROSCOPIC:
-            raise ValueError(f"gyroscopic must be one of {', '.join(map(repr, GYROSCOPIC))}, got {self.gyroscopic!r}")
+        gyroscopic_weight(self.gyroscopic)  # a rule it does not know raises, naming the rules
         if self.gyroscopic != "explicit" and self.actuation != "dynamics":
             raise ValueError("gyroscopic sets how the rigid tree of the \"dynamics\" prior steps; set actuation = "
                              "\"dynamics\" with it")

@@ -33,10 +33,10 @@ import numpy as np
 import torch
 
 from mdgs.actuation import (
-    GYROSCOPIC,
     DriveSet,
     coupled_motor_accelerations,
     drives_of,
+    gyroscopic_weight,
     motor_accelerations,
     warn_unseen,
 )
@@ -101,8 +101,7 @@ class ConstantTwistConfig:
             raise ValueError(f"substeps must be a positive integer, got {self.substeps!r}")
         if self.substeps > 1 and not self.dynamics:
             raise ValueError("substeps integrate the rigid tree's forward dynamics; set dynamics = true with them")
-        if self.gyroscopic not in GYROSCOPIC:
-            raise ValueError(f"gyroscopic must be one of {', '.join(map(repr, GYROSCOPIC))}, got {self.gyroscopic!r}")
+        gyroscopic_weight(self.gyroscopic)  # a rule it does not know raises, naming the rules
         if self.gyroscopic != "explicit" and not self.dynamics:
             raise ValueError("gyroscopic sets how the rigid tree's forward dynamics steps; set dynamics = true with it")
 
