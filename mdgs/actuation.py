@@ -66,7 +66,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from mdgs.rigid import _skew_mat, advance, twist
+from mdgs.rigid import Twist, _skew_mat, advance, twist
 from mdgs.structure import fixes_rotation, kabsch, segment_mean
 
 #: Forward dynamics' contact (:func:`coupled_motor_accelerations`): a box corner closer to a surface than
@@ -127,7 +127,7 @@ def gyroscopic_weight(rule: str) -> float:
     return GYROSCOPIC[rule]
 
 __all__ = ["FORWARD_DYNAMICS_REVISION", "GYROSCOPIC", "gyroscopic_weight", "Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
-           "motor_accelerations", "coupled_motor_accelerations", "contacts", "push_out", "warn_unseen"]
+           "motor_accelerations", "coupled_motor_accelerations", "contacts", "push_out", "Pose", "pose_of", "warn_unseen"]
 
 
 @dataclass(frozen=True)
@@ -270,6 +270,15 @@ class DriveSet:
                                         "off_rim": [int(i) for i in np.flatnonzero(~np.asarray(self.on_rim, bool))],
                                         "g": float(np.linalg.norm(self.gravity))}
         return self._cache["constants"]
+
+    def const(self, a: np.ndarray, dev, dtype: torch.dtype = torch.float64) -> torch.Tensor:
+        """``torch.as_tensor(a)`` on ``dev``, built once for each of the scene's arrays (a link's axis, a surface's
+        frame): a step of the forward dynamics reads dozens of them."""
+        key = ("const", id(a), str(dev), dtype)
+        hit = self._cache.get(key)
+        if hit is None or hit[0] is not a:  # the array is kept with its tensor, so that its id is not reused
+            hit = self._cache[key] = (a, torch.as_tensor(a, dtype=dtype, device=dev))
+        return hit[1]
 
     def tensors(self, dev) -> dict:
         """Stacked float64 / int64 tensors of the drives and bodies on ``dev`` (built once per device)."""
@@ -561,6 +570,28 @@ def motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, r
     return acc.to(x.dtype)
 
 
+class Pose(NamedTuple):
+    """Each object's pose fitted to its nodes, and its twist: what every step of the forward dynamics starts from.
+
+    R : [B, S, 3, 3], t : [B, S, 3] the pose (:func:`mdgs.structure.kabsch`, float64); tw : the twists
+    (:func:`mdgs.rigid.twist`), None without node velocities.
+    """
+
+    R: torch.Tensor
+    t: torch.Tensor
+    tw: Twist | None
+
+
+def pose_of(x: torch.Tensor, v: torch.Tensor | None, ref: torch.Tensor, seg: torch.Tensor, n_obj: int,
+            mass: torch.Tensor | None = None) -> Pose:
+    """The :class:`Pose` of nodes ``x`` [B, N, 3] with velocities ``v`` (or None) and element ``mass`` [N];
+    ``ref`` [N, 3] the nodes in their bodies' frames, ``seg`` [N] their objects."""
+    dev, f64 = x.device, torch.float64
+    xd, seg = x.to(f64), seg.to(dev)
+    R, t = kabsch(ref.to(dev, f64), xd, seg, n_obj)
+    return Pose(R, t, twist(xd, v, seg, n_obj, mass.to(dev)) if v is not None else None)
+
+
 def _rows(S: int, B: int, like: torch.Tensor, c: int, p: int, D: torch.Tensor, arm_c: torch.Tensor | None = None,
           arm_p: torch.Tensor | None = None) -> torch.Tensor:
     """Rows [B, k, 6 S] over the objects' stacked accelerations ``(a_s, alpha_s)`` of the relative acceleration of
@@ -650,21 +681,20 @@ def contacts(R: torch.Tensor, t: torch.Tensor, tw, drives: DriveSet, dt: float) 
     post is held by both."""
     f64, dev = torch.float64, R.device
     B = R.shape[0]
-    obj = torch.as_tensor(drives.corner_obj, device=dev)
-    P_all = (R[:, obj] @ torch.as_tensor(drives.corners, dtype=f64, device=dev).unsqueeze(-1)).squeeze(-1) + t[:, obj]
-    corner_mu = torch.as_tensor(drives.corner_friction, dtype=f64, device=dev)
+    obj = drives.const(drives.corner_obj, dev, torch.long)
+    P_all = (R[:, obj] @ drives.const(drives.corners, dev).unsqueeze(-1)).squeeze(-1) + t[:, obj]
+    corner_mu = drives.const(drives.corner_friction, dev)
     Q = len(drives.rim_obj)
     if Q:  # every rim's centre and axis in the world
-        robj = torch.as_tensor(drives.rim_obj, device=dev)
-        rims = torch.as_tensor(drives.rims, dtype=f64, device=dev)
+        robj = drives.const(drives.rim_obj, dev, torch.long)
+        rims = drives.const(drives.rims, dev)
         centre = (R[:, robj] @ rims[:, :3].unsqueeze(-1)).squeeze(-1) + t[:, robj]  # [B, Q, 3]
         axis = (R[:, robj] @ rims[:, 3:6].unsqueeze(-1)).squeeze(-1)
         radius = rims[:, 6].view(1, Q, 1, 1)
         phase = torch.tensor([2 * np.pi * k / RIM_SUPPORT for k in range(RIM_SUPPORT)], dtype=f64, device=dev)
     Ps, objs, mus, gaps, normals = [], [], [], [], []
     for sf in drives.surfaces:
-        rot = torch.as_tensor(sf.rot, dtype=f64, device=dev)
-        pos = torch.as_tensor(sf.pos, dtype=f64, device=dev)
+        rot, pos = drives.const(sf.rot, dev), drives.const(sf.pos, dev)
         keep = drives.constants()["off_rim"] if sf.kind == "plane" else slice(None)  # not a mask: static shapes
         P, o, mu = P_all[:, keep], obj[keep], corner_mu[keep]
         if sf.kind == "plane" and Q:
@@ -679,7 +709,7 @@ def contacts(R: torch.Tensor, t: torch.Tensor, tw, drives: DriveSet, dt: float) 
             support = (centre.unsqueeze(2) + radius * ring).reshape(B, Q * RIM_SUPPORT, 3)
             P = torch.cat([P, support], 1)
             o = torch.cat([o, robj.repeat_interleave(RIM_SUPPORT)])
-            mu = torch.cat([mu, torch.as_tensor(drives.rim_friction, dtype=f64, device=dev).repeat_interleave(RIM_SUPPORT)])
+            mu = torch.cat([mu, drives.const(drives.rim_friction, dev).repeat_interleave(RIM_SUPPORT)])
         d, n = _surface_distance((P - pos) @ rot, sf.kind, sf.size)
         Ps.append(P)
         objs.append(o)
@@ -734,24 +764,24 @@ def _soft_reference(pos: torch.Tensor, vel: torch.Tensor, lk: Link) -> tuple[tor
     return -b * vel - k * d * pos, ((1 - d) / d * lk.invweight).clamp_min(1e-15)
 
 
-def _joint_angles(R: torch.Tensor, t: torch.Tensor, lk: Link) -> torch.Tensor:
+def _joint_angles(R: torch.Tensor, t: torch.Tensor, lk: Link, drives: DriveSet) -> torch.Tensor:
     """MuJoCo's ``qpos`` [B] of link ``lk``'s hinge or slide from the objects' poses (:class:`Link`)."""
     f64, dev = torch.float64, R.device
     c, p = lk.child, lk.parent
     Rp = R[:, p] if p >= 0 else torch.eye(3, dtype=f64, device=dev).expand_as(R[:, c])
-    axis = torch.as_tensor(lk.axis, dtype=f64, device=dev)
+    axis = drives.const(lk.axis, dev)
     if lk.kind == "hinge":
-        A = Rp.transpose(-1, -2) @ R[:, c] @ torch.as_tensor(lk.frame0, dtype=f64, device=dev).T  # Rot(axis, q - q0)
+        A = Rp.transpose(-1, -2) @ R[:, c] @ drives.const(lk.frame0, dev).T  # Rot(axis, q - q0)
         vee = torch.stack([A[:, 2, 1] - A[:, 1, 2], A[:, 0, 2] - A[:, 2, 0], A[:, 1, 0] - A[:, 0, 1]], -1) / 2
         cos = (A.diagonal(dim1=-2, dim2=-1).sum(-1) - 1) / 2
         return lk.qpos0 + torch.atan2(vee @ axis, cos)
     tp = t[:, p] if p >= 0 else torch.zeros_like(t[:, c])
     rel = (Rp.transpose(-1, -2) @ (t[:, c] - tp).unsqueeze(-1)).squeeze(-1)
-    return lk.qpos0 + (rel - torch.as_tensor(lk.origin, dtype=f64, device=dev)) @ axis
+    return lk.qpos0 + (rel - drives.const(lk.origin, dev)) @ axis
 
 
 def push_out(x: torch.Tensor, v: torch.Tensor, drives: DriveSet, ref: torch.Tensor, seg: torch.Tensor, n_obj: int,
-             mass: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+             mass: torch.Tensor, pose: Pose | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Move the tree out of the world's surfaces, keeping its twists: a position correction after a step.
 
     The contact rows of :func:`coupled_motor_accelerations` hold accelerations: a corner that ends a
@@ -770,35 +800,44 @@ def push_out(x: torch.Tensor, v: torch.Tensor, drives: DriveSet, ref: torch.Tens
     rigidly by its ``d`` (:func:`mdgs.rigid.advance` over no time), its twist unchanged: the split
     impulse of game physics (Catto 2006; Tonge et al. 2012), where Baumgarte's correction through the
     velocities would launch the bodies. Linear in ``d``: a correction of a few millimetres leaves an
-    error of its square over the lever arm. ``x, v`` [B, N, 3]; returns them moved, in ``x``'s dtype;
-    unchanged without surfaces."""
+    error of its square over the lever arm. ``x, v`` [B, N, 3]; returns them moved, in ``x``'s dtype, or
+    the very tensors ``x, v`` (eager) where no corner is inside a surface; ``pose``: their :class:`Pose`, when
+    the caller has it."""
     if not (len(drives.corner_obj) or len(drives.rim_obj)):
         return x, v
     dev, f64 = x.device, torch.float64
     T = drives.tensors(dev)
     xd, seg, mass = x.to(f64), seg.to(dev), mass.to(dev)
     B, S = x.shape[0], n_obj
-    R, t = kabsch(ref.to(dev, f64), xd, seg, n_obj)
-    tw = twist(xd, v.to(f64), seg, n_obj, mass)
+    R, t, tw = pose if pose is not None else pose_of(x, v, ref, seg, n_obj, mass)
     still = tw._replace(vc=torch.zeros_like(tw.vc), omega=torch.zeros_like(tw.omega))
     ct = contacts(R, t, still, drives, 1.0)
-    xs, M, _, J, _, _ = _tree(xd, R, t, T, drives, S, None)
-    Jm = torch.cat(J, 1) if J else xd.new_zeros(B, 0, 6 * S)
-    C0 = Jm.shape[1]
-    arm = ct.P - xs[:, ct.obj]  # [B, C, 3]
-    n = ct.frame[:, :, 2]
-    onehot = torch.nn.functional.one_hot(ct.obj, S).to(f64)  # [C, S]
-    Nc = torch.einsum("bck,cs->bcsk", torch.cat([n, torch.linalg.cross(arm, n, dim=-1)], -1), onehot).reshape(B, -1, 6 * S)
-    active = ct.gap < -PUSH_OUT_SLOP
+    active = ct.gap < -PUSH_OUT_SLOP  # [B, C]
     static = torch.compiler.is_compiling()
     if not static and not bool(active.any()):
         return x, v
+    # eager, the penetrating corners first, as many slots as the batch's most (a scene with many colliding boxes
+    # has hundreds of candidates and a handful inside); compiled, every candidate keeps its slot (static shapes)
+    C = active.shape[-1]
+    if static:
+        sel = torch.arange(C, device=dev).expand(B, C)
+    else:
+        sel = torch.argsort((~active).to(torch.int8), dim=-1, stable=True)[:, :max(int(active.sum(-1).max()), 1)]
+    active, gap, obj = torch.gather(active, 1, sel), torch.gather(ct.gap, 1, sel), ct.obj[sel]  # [B, n]
+    xs, M, _, J, _, _ = _tree(xd, R, t, T, drives, S, None)
+    Jm = torch.cat(J, 1) if J else xd.new_zeros(B, 0, 6 * S)
+    C0 = Jm.shape[1]
+    P = torch.gather(ct.P, 1, sel.unsqueeze(-1).expand(-1, -1, 3))
+    arm = P - torch.gather(xs, 1, obj.unsqueeze(-1).expand(-1, -1, 3))  # [B, n, 3]
+    n = torch.gather(ct.frame[:, :, 2], 1, sel.unsqueeze(-1).expand(-1, -1, 3))
+    onehot = torch.nn.functional.one_hot(obj, S).to(f64)  # [B, n, S]
+    Nc = torch.einsum("bck,bcs->bcsk", torch.cat([n, torch.linalg.cross(arm, n, dim=-1)], -1), onehot).reshape(B, -1, 6 * S)
     for _ in range(CONTACT_PASSES):
         on = active.to(f64)
         Jall = torch.cat([Jm, Nc * on.unsqueeze(-1)], 1)
         diag = torch.cat([xd.new_zeros(B, C0), torch.where(active, -CONTACT_COMPLIANCE, 1.0)], -1)
         K = torch.cat([torch.cat([M, Jall.transpose(-1, -2)], -1), torch.cat([Jall, torch.diag_embed(diag)], -1)], 1)
-        b = torch.cat([xd.new_zeros(B, 6 * S + C0), -PUSH_OUT_FRACTION * (ct.gap + PUSH_OUT_SLOP) * on], -1)
+        b = torch.cat([xd.new_zeros(B, 6 * S + C0), -PUSH_OUT_FRACTION * (gap + PUSH_OUT_SLOP) * on], -1)
         sol = _solve(K, b)
         pulls = active & (sol[:, 6 * S + C0:] > 0)
         if not static and not bool(pulls.any()):
@@ -811,10 +850,11 @@ def push_out(x: torch.Tensor, v: torch.Tensor, drives: DriveSet, ref: torch.Tens
     return xn.to(x.dtype), vn.to(v.dtype)
 
 
-def _world_of(R: torch.Tensor, t: torch.Tensor, s: int, v: np.ndarray, point: bool = False) -> torch.Tensor:
-    """Vectors (points) [k, 3] given in object s's frame (-1: the world) in the world [B, k, 3], the objects'
-    poses ``R, t`` [B, S, 3, 3], [B, S, 3]."""
-    vv = torch.as_tensor(np.atleast_2d(v), dtype=torch.float64, device=R.device).expand(R.shape[0], -1, 3)
+def _world_of(R: torch.Tensor, t: torch.Tensor, s: int, v: np.ndarray, drives: DriveSet,
+              point: bool = False) -> torch.Tensor:
+    """Vectors (points) [k, 3] or [3] given in object s's frame (-1: the world) in the world [B, k, 3], the
+    objects' poses ``R, t`` [B, S, 3, 3], [B, S, 3]; ``v`` one of ``drives``' arrays."""
+    vv = drives.const(v, R.device).view(-1, 3).expand(R.shape[0], -1, 3)
     if s < 0:
         return vv
     return (R[:, s].unsqueeze(1) @ vv.unsqueeze(-1)).squeeze(-1) + (t[:, s].unsqueeze(1) if point else 0.0)
@@ -841,7 +881,7 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
     ``J z = rhs(w + h z)`` linearised, so that the term acts at the step's end."""
     B, dev, f64 = xd.shape[0], xd.device, torch.float64
     xs = (R @ T["com"].unsqueeze(-1)).squeeze(-1) + t  # mass centres [B, S, 3]
-    fixed = torch.as_tensor(drives.fixed, device=dev)
+    fixed = drives.const(drives.fixed, dev, torch.bool)
     eye3 = torch.eye(3, dtype=f64, device=dev)
     lin = torch.where(fixed.view(S, 1, 1), eye3, T["mass"].view(S, 1, 1) * eye3)  # [S, 3, 3]
     ang = torch.where(fixed.view(1, S, 1, 1), eye3, R @ T["inertia"] @ R.transpose(-1, -2))  # [B, S, 3, 3]
@@ -858,7 +898,7 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
     rate = {}  # child object -> its joint's rate row
     for lk in drives.links:
         c, p = lk.child, lk.parent
-        A = _world_of(R, t, p, lk.anchor, point=True)[:, 0]
+        A = _world_of(R, t, p, lk.anchor, drives, point=True)[:, 0]
         rc, rp = A - xs[:, c], (A - xs[:, p] if p >= 0 else None)
         wc = w[:, c] if w is not None else zero3
         wp = w[:, p] if w is not None and p >= 0 else zero3
@@ -871,7 +911,7 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
             J.append(_rows(S, B, xd, c, p, world))
             rhs.append(xd.new_zeros(B, 3))
         if lk.kind == "hinge":
-            D = _world_of(R, t, p, lk.perp)  # [B, 2, 3], turning with the parent
+            D = _world_of(R, t, p, lk.perp, drives)  # [B, 2, 3], turning with the parent
             J.append(_rows(S, B, xd, c, p, D))
             rhs.append((D * torch.linalg.cross(wp, wc - wp, dim=-1).unsqueeze(1)).sum(-1))
             if h is not None:  # d/dw_c of D . (w_p x (w_c - w_p)) is D x w_p, d/dw_p is w_c x D
@@ -880,10 +920,10 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
                 if p >= 0:
                     blk[:, :, p, 3:] -= h * torch.linalg.cross(wc.unsqueeze(1).expand_as(D), D, dim=-1)
         if lk.kind == "slide":
-            J.append(_rows(S, B, xd, c, p, _world_of(R, t, p, lk.perp), rc, rp))
+            J.append(_rows(S, B, xd, c, p, _world_of(R, t, p, lk.perp, drives), rc, rp))
             rhs.append(xd.new_zeros(B, 2))
         if lk.kind in ("hinge", "slide"):
-            rate[c] = _joint_row(S, B, xd, xs, c, p, lk.kind, _world_of(R, t, p, lk.axis), A)  # [B, 1, 6S]
+            rate[c] = _joint_row(S, B, xd, xs, c, p, lk.kind, _world_of(R, t, p, lk.axis, drives), A)  # [B, 1, 6S]
             if lk.armature > 0:
                 M = M + lk.armature * rate[c].transpose(-1, -2) @ rate[c]
     return xs, M, ang, J, rhs, rate
@@ -892,7 +932,7 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
 def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
                                 seg: torch.Tensor, n_obj: int, v: torch.Tensor | None = None,
                                 mass: torch.Tensor | None = None, dt: float | None = None,
-                                gyroscopic: str = "explicit") -> torch.Tensor:
+                                gyroscopic: str = "explicit", pose: Pose | None = None) -> torch.Tensor:
     """Node accelerations [B, N, 3] (m/s^2) of the motors with every joint coupled: MuJoCo's ``M^-1 qfrc_actuator``.
 
     Unlike :func:`motor_accelerations` (the driven joint alone, its parent held) the parent recoils and
@@ -933,6 +973,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     gimbal: 90 rad/s, a nutation near 175 rad/s) gains energy without it, in 2.5 ms substeps as well
     (``benchmarks/mdgs_probes/gyroscopic.py``); the anchors' centripetal terms stay explicit (made
     implicit too, they cost the user scene's cart and pole 130x at t = 110 on the validation split).
+    ``pose``: the objects' :class:`Pose` at ``x, v`` (:func:`pose_of`) when the caller has it, so that a
+    stepper that needs the twists itself fits them once (the same numbers as fitted here).
 
     *Contact* with the world's colliding geoms (``drives.surfaces``: planes, boxes, spheres, capsules,
     cylinders; :func:`contacts` lists the candidates): every corner of a colliding box of a moving
@@ -976,19 +1018,20 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     dev, f64 = x.device, torch.float64
     T = drives.tensors(dev)
     xd, seg = x.to(f64), seg.to(dev)
-    R, t = kabsch(ref.to(dev, f64), xd, seg, n_obj)  # [B, S, 3, 3], [B, S, 3]
+    if pose is None:
+        pose = pose_of(x, v, ref, seg, n_obj, mass)
+    R, t, tw = pose  # [B, S, 3, 3], [B, S, 3], their twists (dynamic) or None
     if dynamic:
-        tw = twist(xd, v, seg, n_obj, mass.to(dev))
         w = tw.omega  # [B, S, 3]
     B, S = x.shape[0], n_obj
     weight = gyroscopic_weight(gyroscopic)
     h = weight * dt if dynamic and weight else None  # the step to the terms' time
     xs, M, ang, J, rhs, rate = _tree(xd, R, t, T, drives, S, w if dynamic else None, h)
-    fixed = torch.as_tensor(drives.fixed, device=dev)
+    fixed = drives.const(drives.fixed, dev, torch.bool)
     zero3 = xd.new_zeros(B, 3)
 
     def world_of(s: int, v: np.ndarray, point: bool = False) -> torch.Tensor:
-        return _world_of(R, t, s, v, point)
+        return _world_of(R, t, s, v, drives, point)
 
     def joint_row(c: int, p: int, kind: str, n: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
         return _joint_row(S, B, xd, xs, c, p, kind, n, A)
@@ -1004,7 +1047,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             F = F + u[:, k: k + 1] * g[:, 0]
     if dynamic:  # gravity and the gyroscopic torques; then the floor's corners
         moving = (~fixed).to(f64).view(1, S, 1)
-        grav = torch.as_tensor(drives.gravity, dtype=f64, device=dev)
+        grav = drives.const(drives.gravity, dev)
         Iw = ang  # [B, S, 3, 3]
         L_ = (Iw @ w.unsqueeze(-1)).squeeze(-1)  # angular momenta [B, S, 3]
         gyro = -torch.linalg.cross(w, L_, dim=-1)
@@ -1049,7 +1092,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         if lk.limit is None:
             continue
         c, p = lk.child, lk.parent
-        q = _joint_angles(R, t, lk)  # [B]
+        q = _joint_angles(R, t, lk, drives)  # [B]
         n = world_of(p, lk.axis)[:, 0]
         wc, wp = w[:, c], (w[:, p] if p >= 0 else zero3)
         if lk.kind == "hinge":  # qdd = n . (alpha_c - alpha_p) - n . (w_p x (w_c - w_p)), the axis turning with p

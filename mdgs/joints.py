@@ -237,7 +237,8 @@ def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torc
     (:meth:`JointSet.tensors`: one kind at one depth of the tree), each group in one batched pass.
     pose : every object's placement ``(R [B, S, 3, 3], t [B, S, 3])`` when the caller already has it
         (``x`` placed rigidly by :func:`mdgs.structure.align_with_pose`: the same fit, up to ``x``'s
-        rounding); otherwise fitted here (:func:`mdgs.structure.kabsch`).
+        rounding); otherwise fitted here (:func:`mdgs.structure.kabsch`). A third entry, when not None, is
+        the twists of ``x, v`` (:func:`mdgs.rigid.twist`; :class:`mdgs.actuation.Pose`), else fitted here.
     """
     if not joints:
         return x, v
@@ -246,8 +247,9 @@ def project_joints(x: torch.Tensor, v: torch.Tensor, joints: JointSet, ref: torc
     xd, vd = x.to(f64), v.to(f64)
     seg = seg.to(dev)
     B = x.shape[0]
-    R, t = pose if pose is not None else kabsch(ref.to(dev, f64), xd, seg, n_obj)  # [B, S, 3, 3], [B, S, 3]
-    tw = twist(xd, vd, seg, n_obj, mass.to(dev))
+    R, t = pose[:2] if pose is not None else kabsch(ref.to(dev, f64), xd, seg, n_obj)  # [B, S, 3, 3], [B, S, 3]
+    tw = pose[2] if pose is not None and len(pose) > 2 and pose[2] is not None else twist(xd, vd, seg, n_obj,
+                                                                                         mass.to(dev))
     # every object's corrected pose and twist (velocity of its mass centre, mass centre), with the
     # world appended as object S (R = I, t = 0, at rest) when a joint hangs from it; tw keeps the predicted twists
     w, vc, c = tw.omega, tw.vc, tw.c

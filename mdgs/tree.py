@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import torch
 
-from mdgs.actuation import DriveSet, coupled_motor_accelerations, push_out
+from mdgs.actuation import DriveSet, coupled_motor_accelerations, pose_of, push_out
 from mdgs.joints import JointSet, project_joints
-from mdgs.rigid import advance, project, twist
+from mdgs.rigid import advance, project
 
 __all__ = ["tree_step"]
 
@@ -35,13 +35,21 @@ def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: Driv
     terms act (:data:`mdgs.actuation.GYROSCOPIC`). Static nodes are moved like any other: the caller keeps them
     in place."""
     h = dt / substeps
+    pose = None  # the objects' poses and twists at x, v, fitted once per state
     for _ in range(substeps):
-        tw = twist(x, v, seg, n_obj, mass)
-        acc = coupled_motor_accelerations(x, ctrl, drives, ref, seg, n_obj, v=v, mass=mass, dt=h, gyroscopic=gyroscopic)
+        if pose is None:
+            pose = pose_of(x, v, ref, seg, n_obj, mass)
+        tw = pose.tw
+        acc = coupled_motor_accelerations(x, ctrl, drives, ref, seg, n_obj, v=v, mass=mass, dt=h, gyroscopic=gyroscopic,
+                                          pose=pose)
         dvc, dw = project(acc * h, x, tw, seg, n_obj, mass)
         x, v = advance(x, tw, tw.vc + dvc, tw.omega + dw, h, seg, trapezoidal=trapezoidal)
+        pose = None
         if pushed_out:
-            x, v = push_out(x, v, drives, ref, seg, n_obj, mass)
-        if joints:
-            x, v = project_joints(x, v, joints, ref, seg, n_obj, mass)
+            pose = pose_of(x, v, ref, seg, n_obj, mass)
+            xp, vp = push_out(x, v, drives, ref, seg, n_obj, mass, pose=pose)
+            if xp is not x or vp is not v:  # moved: the next substep fits its pose again
+                x, v, pose = xp, vp, None
+        if joints:  # on the pose fitted for the push-out, where that left x, v as they were
+            x, v, pose = *project_joints(x, v, joints, ref, seg, n_obj, mass, pose), None
     return x, v

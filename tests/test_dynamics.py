@@ -556,8 +556,8 @@ def test_the_joint_angles_read_from_the_bodies_poses_are_mujocos_qpos():
         mujoco.mj_kinematics(m, d)
         R = torch.tensor(d.xmat[1:].reshape(1, 3, 3, 3))
         t = torch.tensor(d.xpos[1:].reshape(1, 3, 3))
-        assert abs(float(_joint_angles(R, t, hinge)[0]) - d.qpos[7]) < 1e-9
-        assert abs(float(_joint_angles(R, t, slide)[0]) - d.qpos[8]) < 1e-9
+        assert abs(float(_joint_angles(R, t, hinge, ds)[0]) - d.qpos[7]) < 1e-9
+        assert abs(float(_joint_angles(R, t, slide, ds)[0]) - d.qpos[8]) < 1e-9
 
 
 PENDULUM = """<mujoco model="pendulum"><compiler angle="radian"/><option gravity="0 0 -9.81"/><worldbody>
@@ -799,6 +799,34 @@ def test_push_out_keeps_the_cubli_flywheels_on_their_hinges(tiny_cubli):
     before, after = twist(x, v, sc.obj, sc.n_obj, sc.mass.double()), twist(xn, vn, sc.obj, sc.n_obj, sc.mass.double())
     np.testing.assert_allclose(after.vc.numpy(), before.vc.numpy(), atol=1e-9)
     np.testing.assert_allclose(after.omega.numpy(), before.omega.numpy(), atol=1e-9)
+
+
+def test_push_out_solves_only_the_penetrating_corners_eagerly_and_moves_as_the_compiled_all_slot_system(tiny_cubli):
+    """Eagerly, push-out gathers the corners inside a surface into as many slots as the batch's most (the
+    others are rows ``l = 0`` of the full system, which the compiled step keeps, shapes not following the
+    state): a batch of the tiny Cubli sunk 4 mm, sunk 1 mm and tilted (fewer corners in), and 1 mm above the
+    floor (none in) is moved as the compiled system moves it (dynamo's ``eager`` backend, fullgraph; float64
+    solves of different sizes, so to 1e-12 m), and the batch's untouched row stays where it was."""
+    from mdgs.actuation import push_out
+
+    d = load_split(tiny_cubli / "test.h5")
+    sc = SceneGraph.from_static(d.static, has_contact=d.has_contact)
+    ds = drives_of(d.mj_model(), d.static["node_body"], d.static["node_centroid"])
+    mov = torch.as_tensor(~np.asarray(d.static["node_static"], bool)).view(1, -1, 1)
+    x0 = torch.as_tensor(d.x[:1, 0], dtype=torch.float64)
+    c = x0[0, mov[0, :, 0]].mean(0)
+    tilt = torch.as_tensor(_rot_x(0.05)) @ (x0[0] - c).T
+    shifts = [x0 - torch.tensor([0, 0, 0.004]), (tilt.T + c - torch.tensor([0, 0, 0.001]))[None],
+              x0 + torch.tensor([0, 0, 0.001])]
+    x = torch.cat([torch.where(mov, s, x0) for s in shifts])
+    v = torch.as_tensor(d.v[:1, 0], dtype=torch.float64).expand(3, -1, -1).clone()
+    args = (ds, sc.ref_shape.double(), sc.obj, sc.n_obj, sc.mass.double())
+    xe, ve = push_out(x, v, *args)
+    xc, vc = torch.compile(push_out, backend="eager", fullgraph=True)(x, v, *args)
+    assert float((xe - x)[:2].abs().max()) > 5e-4  # the sunk rows moved
+    np.testing.assert_array_equal(xe[2].numpy(), x[2].numpy())  # the row above the floor did not
+    np.testing.assert_allclose(xe.numpy(), xc.numpy(), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ve.numpy(), vc.numpy(), rtol=0, atol=1e-9)
 
 
 def test_push_out_is_refused_without_the_dynamics_it_belongs_to():

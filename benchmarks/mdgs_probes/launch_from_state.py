@@ -60,7 +60,7 @@ def to_mujoco(x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             qvel[va:va + 3] = tw.vc[0, o].numpy() + np.cross(w, pos - tw.c[0, o].numpy())
             qvel[va + 3:va + 6] = R[0, o].numpy().T @ w
         elif lk.kind in ("hinge", "slide"):
-            qpos[qa] = float(_joint_angles(R, t, lk)[0])
+            qpos[qa] = float(_joint_angles(R, t, lk, model._drives)[0])
             Rp = R[0, lk.parent].numpy() if lk.parent >= 0 else np.eye(3)
             wp = tw.omega[0, lk.parent].numpy() if lk.parent >= 0 else np.zeros(3)
             if lk.kind == "hinge":

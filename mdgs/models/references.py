@@ -60,7 +60,10 @@ class ConstantTwistConfig:
         recoiling (:func:`mdgs.actuation.coupled_motor_accelerations`, MuJoCo's ``M^-1 qfrc_actuator``);
         the label gains "+ coupled motors".
     joints : project every step onto the scene's joints (:func:`mdgs.joints.project_joints`, as
-        MDGS's ``joints``); the label gains "+ joints".
+        MDGS's ``joints``); the label gains "+ joints". With ``dynamics`` the tree needs it wherever a rotor
+        spins fast: the forward dynamics holds the joints through their accelerations only, so their
+        positions drift, and a hinge whose child spins at hundreds of rad/s leaves it within frames (the tiny
+        Cubli's test trajectory, 4 or 16 substeps alike); every study row of the tree projects.
     dynamics : the whole tree's forward dynamics instead of the motors' response alone: motors,
         gravity, the velocity terms, range limits and contact with the world's surfaces with friction at
         box corners and cylinder rims (:func:`mdgs.actuation.coupled_motor_accelerations` given the velocities), integrated by
