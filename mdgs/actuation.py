@@ -273,7 +273,10 @@ class DriveSet:
 
     def const(self, a: np.ndarray, dev, dtype: torch.dtype = torch.float64) -> torch.Tensor:
         """``torch.as_tensor(a)`` on ``dev``, built once for each of the scene's arrays (a link's axis, a surface's
-        frame): a step of the forward dynamics reads dozens of them."""
+        frame): a step of the forward dynamics reads dozens of them. Traced (``torch.compile``), no cache: dynamo
+        takes the array for a tensor of the graph, and a dictionary growing under it would compile the step again."""
+        if torch.compiler.is_compiling():
+            return torch.as_tensor(a, dtype=dtype, device=dev)
         key = ("const", id(a), str(dev), dtype)
         hit = self._cache.get(key)
         if hit is None or hit[0] is not a:  # the array is kept with its tensor, so that its id is not reused

@@ -172,7 +172,8 @@ def test_the_compiled_forward_dynamics_solves_with_static_shapes_and_gives_the_e
     graph can replay it); eagerly it solves only the held candidates and stops when none pulls. Both must
     give the same accelerations: compared here (dynamo's own ``eager`` backend, so only the tracing
     differs, fullgraph: no graph break allowed) on boxes resting, tipping up (a pass lets the rising
-    corners go), striking the floor and sliding, and over 20 frames of the Cubli's rigid tree. Tolerance:
+    corners go), striking the floor and sliding, and over 20 frames of the Cubli's rigid tree, bound again halfway
+    (traced once: a recompile is an error). Tolerance:
     the solves are float64 and differ in size, 1e-9 of the acceleration's scale."""
     m = mujoco.MjModel.from_xml_string(BOX)
     nb, ref = _box_nodes(m)
@@ -197,9 +198,12 @@ def test_the_compiled_forward_dynamics_solves_with_static_shapes_and_gives_the_e
     traj = np.arange(te.x.shape[0])
     a = b = tree.initial_state(te, traj, 0)
     step = torch.compile(type(tree).step.__get__(tree), backend="eager", fullgraph=True)
-    for f in range(20):
-        ctrl = torch.from_numpy(te.ctrl[traj, f])
-        a, b = tree.step(a, ctrl), step(b, ctrl)
+    with torch._dynamo.config.patch(error_on_recompile=True):  # one graph, kept when the scene is bound again
+        for f in range(20):
+            ctrl = torch.from_numpy(te.ctrl[traj, f])
+            a, b = tree.step(a, ctrl), step(b, ctrl)
+            if f == 9:
+                tree.bind(te)  # as every rollout and timing does: new scene arrays, the same constants
     assert float(a.v.abs().max()) > 0.1  # the Cubli moved
     np.testing.assert_allclose(b.x.numpy(), a.x.numpy(), rtol=0, atol=1e-5)  # float32 states, 20 frames
 
