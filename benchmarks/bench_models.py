@@ -9,10 +9,10 @@ One run, this machine, medians over repeats; printed per model:
 - ms per training step (perturb + losses + backward + optimiser step) at ``--train-batch``;
 - ms per simulated frame of one trajectory, and per trajectory-frame at each batch size
   (:func:`mdgs.evaluate.cost.step_cost`, the same code the study's speed-accuracy chart uses);
-- for the learned models, the achieved FLOP rate of the largest batched step (FLOPs counted by
+- for the learned models, the achieved FLOP rate of the step at each batch size (FLOPs counted by
   ``torch.utils.flop_counter.FlopCounterMode``) as a fraction of a dense float32 matmul measured
-  in the same run, and the floor those FLOPs set: the ms per trajectory-frame of a step that ran
-  all its FLOPs at that dense rate (a batched target below it cannot be met on this thread);
+  in the same run, and the floor those FLOPs set at the largest batch: the ms per trajectory-frame of a
+  step that ran all its FLOPs at that dense rate (a batched target below it cannot be met on this thread);
 - MuJoCo (the ``mujoco`` reference) at the data's timestep and at one step per frame, on the
   same scale.
 
@@ -112,10 +112,12 @@ def _matmul_rate(device: torch.device, repeats: int = 20) -> tuple[float, int]:
     return 2.0 * rows * 200 * 200 / median_time(mm, repeats), rows
 
 
-def _compiled_line(label: str, model: Simulator, te: SplitData, args, mode: str = "inductor") -> str:
+def _compiled_line(label: str, model: Simulator, te: SplitData, args, mode: str = "inductor",
+                   flops: list[float] | None = None, rate: float = 0.0) -> str:
     """The model with its step compiled: ms per trajectory-frame at each batch (after the compiling
-    first steps, whose seconds are printed), and the largest position difference of a rollout of
-    every test trajectory against the eager step."""
+    first steps, whose seconds are printed), the FLOP rate at each batch against ``rate`` where the eager
+    step's FLOPs per batch ``flops`` are given (the compiled step's are the same), and the largest position
+    difference of a rollout of every test trajectory against the eager step."""
     eager = rollout(model, te, model.device)
     name = label + (" compiled" if mode == "inductor" else f" {mode}")
     t0 = time.perf_counter()
@@ -129,8 +131,10 @@ def _compiled_line(label: str, model: Simulator, te: SplitData, args, mode: str 
     compile_s = time.perf_counter() - t0
     costs = [step_cost(model, te, batch=b, frames=args.frames, repeats=args.repeats) for b in args.batches]
     diff = float(np.nanmax(np.abs(compiled.x - eager.x)))
+    frac = "/".join(f"{100 * f / (c['ms_per_frame'] * 1e-3) / rate:.0f}" for f, c in zip(flops, costs, strict=True)) \
+        if flops else ""
     return (f"{name:22s}{'':>10s}{'':>10s}" + "".join(f"{c['ms_per_trajectory_frame']:>{_col(c['batch'])}.3f}" for c in costs)
-            + f"   compile {compile_s:.0f} s, rollout max |dx| {diff:.1e} m")
+            + f"{frac:>12s}   compile {compile_s:.0f} s, rollout max |dx| {diff:.1e} m")
 
 
 def main() -> None:
@@ -162,7 +166,7 @@ def main() -> None:
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, frame {tr.frame_dt * 1e3:.0f} ms, torch threads "
           f"{args.threads}, torch models on {where}; dense matmul [{rows}x200]@[200x200] {rate / 1e9:.1f} GFLOP/s")
     head = f"{'model':22s}{'params':>10s}{'train ms':>10s}" + "".join(f"{'ms/tf b' + str(b):>{_col(b)}s}" for b in args.batches)
-    print(head + f"{'% matmul':>10s}{'floor ms/tf':>13s}")
+    print(head + f"{'% matmul':>12s}{'floor ms/tf':>13s}")
     rows = []
     for label, model in registry_models(names, tr, tuple(args.widths), dev):
         if isinstance(model, str):
@@ -189,18 +193,22 @@ def main() -> None:
                 train_ms = f"{1e3 * median_time(train_step, args.repeats, 1):.1f}"
             costs = [step_cost(model, te, batch=b, frames=args.frames, repeats=args.repeats) for b in args.batches]
             frac = floor = "-"
-            if cls.learned:
-                big = args.batches[-1]
+            counted = []
+            if cls.learned:  # each batch's FLOPs (counted) over its time, against the dense matmul's rate
                 model.bind(te)
-                st = model.initial_state(te, np.arange(big) % te.x.shape[0], model.history)
-                ctrl = torch.from_numpy(te.ctrl[np.arange(big) % te.x.shape[0], model.history]).to(model.device)
-                with torch.no_grad(), FlopCounterMode(display=False) as fc:
-                    model.step(st, ctrl)
-                flops = fc.get_total_flops()
-                frac = f"{100 * flops / (costs[-1]['ms_per_frame'] * 1e-3) / rate:.0f}"
-                floor = f"{1e3 * flops / big / rate:.4f}"
+                fracs = []
+                for b, c in zip(args.batches, costs, strict=True):
+                    st = model.initial_state(te, np.arange(b) % te.x.shape[0], model.history)
+                    ctrl = torch.from_numpy(te.ctrl[np.arange(b) % te.x.shape[0], model.history]).to(model.device)
+                    with torch.no_grad(), FlopCounterMode(display=False) as fc:
+                        model.step(st, ctrl)
+                    flops = fc.get_total_flops()
+                    counted.append(flops)
+                    fracs.append(f"{100 * flops / (c['ms_per_frame'] * 1e-3) / rate:.0f}")
+                frac = "/".join(fracs)
+                floor = f"{1e3 * flops / args.batches[-1] / rate:.4f}"
             line = (f"{label:22s}{model.parameter_count():>10d}{train_ms:>10s}"
-                    + "".join(f"{c['ms_per_trajectory_frame']:>{_col(c['batch'])}.3f}" for c in costs) + f"{frac:>10s}{floor:>13s}")
+                    + "".join(f"{c['ms_per_trajectory_frame']:>{_col(c['batch'])}.3f}" for c in costs) + f"{frac:>12s}{floor:>13s}")
             print(line, flush=True)
             rows.append(line)
         except Exception as e:  # noqa: BLE001 - one model that fails here is a row that says so; the table goes on
@@ -211,10 +219,10 @@ def main() -> None:
             continue
         if args.compile is not None and model.compilable:
             for mode in args.compile or ["inductor"]:
-                print(_compiled_line(label, model, te, args, mode), flush=True)
+                print(_compiled_line(label, model, te, args, mode, counted, rate), flush=True)
                 vars(model).pop("step", None)  # back to the class's eager step for the next mode
     print("ms/tf bN: milliseconds per trajectory-frame of a rollout step at batch N (batch 1: one trajectory); "
-          "% matmul: FLOP rate of the largest batch against the dense matmul above; floor ms/tf: the step's "
+          "% matmul: FLOP rate at each batch (in the order of the columns) against the dense matmul above; floor ms/tf: the step's "
           "FLOPs per trajectory at that dense matmul rate, the least a step could cost on this thread"
           + ("; compiled / aot: the same model with torch.compile / AOTInductor (compile: seconds spent compiling "
              "every batch shape, outside the timings; max |dx|: against the eager rollout)"

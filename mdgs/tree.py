@@ -20,7 +20,7 @@ from mdgs.actuation import DriveSet, coupled_motor_accelerations, pose_of, push_
 from mdgs.joints import JointSet, project_joints
 from mdgs.rigid import advance, project
 
-__all__ = ["tree_step"]
+__all__ = ["tree_step", "warn_unprojected"]
 
 
 def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
@@ -53,3 +53,16 @@ def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: Driv
         if joints:  # on the pose fitted for the push-out, where that left x, v as they were
             x, v, pose = *project_joints(x, v, joints, ref, seg, n_obj, mass, pose), None
     return x, v
+
+
+def warn_unprojected(drives: DriveSet, projected: bool, who: str) -> None:
+    """Warn (``UserWarning``) that ``who`` steps the tree without the joints' projection where the scene has
+    joints: the forward dynamics holds them through their accelerations only, so their positions drift, and a
+    hinge whose child spins at hundreds of rad/s is left within frames (the tiny Cubli's flywheel,
+    tests/test_dynamics.py). Nothing when ``projected`` or without joints."""
+    if not projected and any(lk.kind != "free" for lk in drives.links):
+        import warnings
+
+        warnings.warn(f"{who} steps the rigid tree without projecting it onto the joints: they drift, and a fast "
+                      "rotor leaves its hinge within frames; set joints = true (the reference "
+                      "constant-twist:dynamics+joints, MDGS's default)", UserWarning, stacklevel=2)

@@ -56,7 +56,7 @@ from mdgs.models.integrators import INTEGRATORS
 from mdgs.models.layers import GCN
 from mdgs.rigid import advance, perturb, project, twist
 from mdgs.structure import align_with_pose
-from mdgs.tree import tree_step
+from mdgs.tree import tree_step, warn_unprojected
 
 __all__ = ["MDGSConfig", "ModelConfig", "VARIANTS", "Prediction", "MDGS", "MDGSNoConstraint",
            "MDGSSingleSpeed", "noise_sigmas", "CUBLI_NOISE", "INCREMENT_NOISE"]
@@ -649,6 +649,8 @@ class MDGS(Simulator):
                         if self.config.actuation != "none" else DriveSet())
         if self.config.actuation == "dynamics":
             warn_unseen(self._drives, "MDGS's \"dynamics\" prior")
+            if self.config.prior_substeps > 1:
+                warn_unprojected(self._drives, self.config.joints, "MDGS's \"dynamics\" prior")
         self._gravity = (torch.tensor(np.asarray(split.mj_model().opt.gravity, float), dtype=torch.float32)
                          if self.config.gravity_prior else None)
 

@@ -45,7 +45,7 @@ from mdgs.graphs import SceneGraph
 from mdgs.joints import JointSet, joints_of, project_joints
 from mdgs.models.base import ModelError, Simulator, State
 from mdgs.rigid import advance, project, twist
-from mdgs.tree import tree_step
+from mdgs.tree import tree_step, warn_unprojected
 
 __all__ = ["ConstantTwist", "ConstantTwistConfig", "MuJoCoReference", "MuJoCoConfig"]
 
@@ -128,6 +128,8 @@ class ConstantTwist(Simulator):
             warn_unseen(self._drives, "the rigid tree reference")
         self._joints = (joints_of(split.mj_model(), split.static["node_body"], split.static["node_centroid"])
                         if self.config.joints else JointSet())
+        if self.config.dynamics:
+            warn_unprojected(self._drives, self.config.joints, "the rigid tree reference")
 
     def step(self, state: State, ctrl: torch.Tensor) -> State:
         x, v = state.x, state.v
