@@ -127,7 +127,8 @@ def gyroscopic_weight(rule: str) -> float:
     return GYROSCOPIC[rule]
 
 __all__ = ["FORWARD_DYNAMICS_REVISION", "GYROSCOPIC", "gyroscopic_weight", "Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
-           "motor_accelerations", "coupled_motor_accelerations", "contacts", "push_out", "Pose", "pose_of", "warn_unseen"]
+           "motor_accelerations", "coupled_motor_accelerations", "contacts", "push_out", "project_velocities", "Pose", "pose_of",
+           "warn_unseen"]
 
 
 @dataclass(frozen=True)
@@ -851,6 +852,55 @@ def push_out(x: torch.Tensor, v: torch.Tensor, drives: DriveSet, ref: torch.Tens
     dc = d[..., :3] + torch.linalg.cross(alpha, tw.c - xs, dim=-1)  # the node centre's displacement
     xn, vn = advance(xd, tw, tw.vc, tw.omega, 0.0, seg, dc, alpha)
     return xn.to(x.dtype), vn.to(v.dtype)
+
+
+def project_velocities(x: torch.Tensor, v: torch.Tensor, drives: DriveSet, ref: torch.Tensor, seg: torch.Tensor,
+                       n_obj: int, mass: torch.Tensor, x_from: torch.Tensor | None = None) -> torch.Tensor:
+    """The objects' twists made to satisfy the joints by the least kinetic energy change: node velocities [B, N, 3].
+
+    The joints' rows ``J`` of the tree at the poses of ``x`` [B, N, 3] (:func:`coupled_motor_accelerations`: a
+    hinge's anchor and cross-axis rows, a slide's, the world's elements held) hold the stacked twists
+    ``nu = (v_s, w_s)`` (velocity of each mass centre, angular velocity) when ``J nu = 0``; the twists of ``v``
+    are moved onto that set by the change of least kinetic energy::
+
+        [ M   J^T ] [ d nu ]   [    0    ]        M: the tree's mass matrix (armature included)
+        [ J    0  ] [  l   ] = [ -J nu   ]
+
+    so that the change is a set of equal and opposite impulses at the joints, ``-M^-1 J^T l``: the linear and
+    angular momentum of bodies jointed only to one another are kept (a joint to the world, or a body of the
+    world, takes what it must), where a projection that hands each child its parent's twist across the joint
+    (:func:`mdgs.joints.project_joints`) drops the child's share, and with a heavy rotor on a light carrier
+    (rotational-center's) moves the rotor to the carrier instead of both to their common motion.
+    ``x_from``: the nodes that ``v`` belongs to, when ``x`` is their projected placement (each body's twist,
+    fitted to ``x_from, v``, is carried to ``x`` as a body property: the velocity of its mass centre and its
+    angular velocity); default ``x``. Returns ``v'`` in ``v``'s dtype, velocities of the rigid motions at ``x``;
+    ``v`` unchanged without joints."""
+    if not drives.links and not drives.constants()["fixed"]:
+        return v
+    dev, f64 = x.device, torch.float64
+    T = drives.tensors(dev)
+    xd, seg, mass = x.to(f64), seg.to(dev), mass.to(dev)
+    B, S = x.shape[0], n_obj
+    R, t, _ = pose_of(x, None, ref, seg, n_obj)
+    xs, M, _, J, _, _ = _tree(xd, R, t, T, drives, S, None)
+    if not J:
+        return v
+    src = xd if x_from is None else x_from.to(f64)
+    tw = twist(src, v.to(f64), seg, n_obj, mass)
+    if x_from is None:
+        v_ms = tw.vc + torch.linalg.cross(tw.omega, xs - tw.c, dim=-1)
+    else:  # the same body point (its mass centre) before the placement moved it
+        R0, t0, _ = pose_of(x_from, None, ref, seg, n_obj)
+        xs0 = (R0 @ T["com"].unsqueeze(-1)).squeeze(-1) + t0
+        v_ms = tw.vc + torch.linalg.cross(tw.omega, xs0 - tw.c, dim=-1)
+    nu = torch.cat([v_ms, tw.omega], -1).reshape(B, 6 * S)
+    Jm = torch.cat(J, 1)
+    C = Jm.shape[1]
+    K = torch.cat([torch.cat([M, Jm.transpose(-1, -2)], -1), torch.cat([Jm, xd.new_zeros(B, C, C)], -1)], 1)
+    b = torch.cat([xd.new_zeros(B, 6 * S), -(Jm @ nu.unsqueeze(-1)).squeeze(-1)], -1)
+    z = (nu + _solve(K, b)[:, :6 * S]).view(B, S, 6)
+    out = z[:, seg, :3] + torch.linalg.cross(z[:, seg, 3:], xd - xs[:, seg], dim=-1)
+    return out.to(v.dtype)
 
 
 def _world_of(R: torch.Tensor, t: torch.Tensor, s: int, v: np.ndarray, drives: DriveSet,

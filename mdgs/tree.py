@@ -16,24 +16,41 @@ from __future__ import annotations
 
 import torch
 
-from mdgs.actuation import DriveSet, coupled_motor_accelerations, pose_of, push_out
+from mdgs.actuation import (
+    DriveSet,
+    coupled_motor_accelerations,
+    pose_of,
+    project_velocities,
+    push_out,
+)
 from mdgs.joints import JointSet, project_joints
 from mdgs.rigid import advance, project
 
-__all__ = ["tree_step", "warn_unprojected"]
+__all__ = ["JOINT_VELOCITIES", "tree_step", "warn_unprojected"]
+
+#: How :func:`tree_step` projects the twists onto the joints: "parent" (each child takes its parent's twist
+#: across the joint, :func:`mdgs.joints.project_joints`) or "momentum" (the least kinetic-energy change,
+#: impulses at the joints: :func:`mdgs.actuation.project_velocities`).
+JOINT_VELOCITIES = ("parent", "momentum")
 
 
 def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
               seg: torch.Tensor, n_obj: int, mass: torch.Tensor, dt: float, substeps: int = 1,
               trapezoidal: bool = False, pushed_out: bool = False,
-              joints: JointSet | None = None, gyroscopic: str = "explicit") -> tuple[torch.Tensor, torch.Tensor]:
+              joints: JointSet | None = None, gyroscopic: str = "explicit",
+              joint_velocities: str = "parent") -> tuple[torch.Tensor, torch.Tensor]:
     """``x', v'`` [B, N, 3] of the rigid tree after ``dt`` in ``substeps`` equal substeps (module docstring).
 
     ``ctrl`` [B, nu]; ``ref`` [N, 3] the nodes in their bodies' frames (:attr:`mdgs.graphs.SceneGraph.ref_shape`),
     ``seg`` [N] their objects, ``mass`` [N]; ``pushed_out``: out of the surfaces after every substep;
     ``joints``: projected onto them after every substep; ``gyroscopic``: when in each substep the gyroscopic
-    terms act (:data:`mdgs.actuation.GYROSCOPIC`). Static nodes are moved like any other: the caller keeps them
-    in place."""
+    terms act (:data:`mdgs.actuation.GYROSCOPIC`); ``joint_velocities``: with ``joints``, the projected twists are
+    the parent's across each joint ("parent", :func:`mdgs.joints.project_joints`) or the least kinetic-energy
+    change that keeps the joints' momentum ("momentum", :func:`mdgs.actuation.project_velocities`). Static nodes
+    are moved like any other: the caller keeps them in place."""
+    if joint_velocities not in JOINT_VELOCITIES:
+        raise ValueError(f"joint_velocities must be one of {', '.join(map(repr, JOINT_VELOCITIES))}, "
+                         f"got {joint_velocities!r}")
     h = dt / substeps
     pose = None  # the objects' poses and twists at x, v, fitted once per state
     for _ in range(substeps):
@@ -51,7 +68,10 @@ def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: Driv
             if xp is not x or vp is not v:  # moved: the next substep fits its pose again
                 x, v, pose = xp, vp, None
         if joints:  # on the pose fitted for the push-out, where that left x, v as they were
-            x, v, pose = *project_joints(x, v, joints, ref, seg, n_obj, mass, pose), None
+            xj, vj = project_joints(x, v, joints, ref, seg, n_obj, mass, pose)
+            if joint_velocities == "momentum":
+                vj = project_velocities(xj, v, drives, ref, seg, n_obj, mass, x_from=x)
+            x, v, pose = xj, vj, None
     return x, v
 
 

@@ -341,9 +341,12 @@ def test_the_rigid_tree_is_a_reference_of_mdgs_evaluate_and_does_not_take_the_mo
     assert _parse_reference("constant-twist:dynamics+joints+substeps=4+implicit-gyroscopic")[1] == {
         "dynamics": True, "joints": True, "substeps": 4, "gyroscopic": "implicit"}
     assert _parse_reference("constant-twist:dynamics+midpoint-gyroscopic")[1] == {"dynamics": True, "gyroscopic": "midpoint"}
+    assert _parse_reference("constant-twist:dynamics+joints+momentum")[1] == {"dynamics": True, "joints": True,
+                                                                            "joint_velocities": "momentum"}
     for bad in ("constant-twist:joints+substeps=4", "constant-twist:dynamics+substeps=0", "constant-twist:dynamics+substeps=x",
                 "constant-twist:joints+implicit-gyroscopic", "constant-twist:dynamics+sideways-gyroscopic",
-                "constant-twist:dynamics+implicit-gyroscopic+midpoint-gyroscopic"):
+                "constant-twist:dynamics+implicit-gyroscopic+midpoint-gyroscopic", "constant-twist:dynamics+momentum",
+                "constant-twist:joints+momentum"):
         with pytest.raises(typer.Exit):
             _parse_reference(bad)
     with pytest.raises(ValueError, match="substeps"):
@@ -539,6 +542,75 @@ CHAIN = """<mujoco model="chain"><compiler angle="radian"/><option gravity="0 0 
     </body>
   </body>
 </worldbody></mujoco>"""
+
+
+def _chain_momenta(ds, x, v, ref, seg, mass):
+    """Linear and angular momentum (about the origin) of the chain's bodies, with the MJCF's masses and inertias,
+    each body's pose and twist fitted to its nodes ``x, v`` [1, N, 3]; and its kinetic energy."""
+    from mdgs.actuation import pose_of
+
+    T = ds.tensors("cpu")
+    R, t, tw = pose_of(x, v, ref, seg, 3, mass)
+    xs = (R @ T["com"].unsqueeze(-1)).squeeze(-1) + t
+    v_ms = tw.vc + torch.linalg.cross(tw.omega, xs - tw.c, dim=-1)
+    inertia = R @ T["inertia"] @ R.transpose(-1, -2)
+    Iw = (inertia @ tw.omega.unsqueeze(-1)).squeeze(-1)
+    m = T["mass"].view(1, 3, 1)
+    P = (m * v_ms).sum(1)[0]
+    L = (torch.linalg.cross(xs, m * v_ms, dim=-1) + Iw).sum(1)[0]
+    E = 0.5 * float((m * v_ms * v_ms).sum() + (tw.omega * Iw).sum())
+    return P.numpy(), L.numpy(), E
+
+
+def test_the_momentum_projection_puts_the_twists_on_the_joints_keeping_momentum_and_losing_energy():
+    """A free-floating chain (free base, hinge, slide) whose bodies move with random twists that break their joints:
+    :func:`mdgs.actuation.project_velocities` gives twists that satisfy the joints (their rows to 1e-10), keeps
+    the chain's linear and angular momentum (to 1e-10: impulses at the joints only) and lowers its kinetic
+    energy, where the parent-first projection of :func:`mdgs.joints.project_joints` changes the momentum (by more
+    than 1 %: each child takes its parent's twist across the joint)."""
+    from mdgs.actuation import _tree, pose_of, project_velocities
+    from mdgs.joints import joints_of, project_joints
+
+    m = mujoco.MjModel.from_xml_string(CHAIN)
+    d = mujoco.MjData(m)
+    nb = np.repeat([1, 2, 3], 4)
+    corners = np.array([[0.01, 0, 0], [0, 0.01, 0], [0, 0, 0.01], [0.01, 0.01, 0.01]])
+    ref = np.tile(corners, (3, 1))
+    ds = drives_of(m, nb, ref)
+    rng = np.random.default_rng(0)
+    d.qpos[:3] = rng.normal(size=3)
+    q = rng.normal(size=4)
+    d.qpos[3:7] = q / np.linalg.norm(q)
+    d.qpos[7], d.qpos[8] = 0.3, 0.02
+    mujoco.mj_kinematics(m, d)
+    R, t = d.xmat[1:].reshape(3, 3, 3), d.xpos[1:]
+    x = np.einsum("nij,nj->ni", R[nb - 1], ref) + t[nb - 1]
+    vc, w = rng.normal(size=(3, 3)), 3 * rng.normal(size=(3, 3))
+    v = vc[nb - 1] + np.cross(w[nb - 1], x - t[nb - 1])
+    seg, mass, ref_t = torch.as_tensor(nb - 1), torch.full((12,), 0.1, dtype=torch.float64), torch.tensor(ref)
+    X, V = torch.tensor(x)[None], torch.tensor(v)[None]
+    V2 = project_velocities(X, V, ds, ref_t, seg, 3, mass)
+    R_, t_, tw = pose_of(X, V2, ref_t, seg, 3, mass)
+    xs, _, _, J, _, _ = _tree(X, R_, t_, ds.tensors("cpu"), ds, 3, None)
+    nu = torch.cat([tw.vc + torch.linalg.cross(tw.omega, xs - tw.c, dim=-1), tw.omega], -1).reshape(1, -1, 1)
+    assert float((torch.cat(J, 1) @ nu).abs().max()) < 1e-10
+    P0, L0, E0 = _chain_momenta(ds, X, V, ref_t, seg, mass)
+    P1, L1, E1 = _chain_momenta(ds, X, V2, ref_t, seg, mass)
+    np.testing.assert_allclose(P1, P0, atol=1e-10)
+    np.testing.assert_allclose(L1, L0, atol=1e-10)
+    assert E1 < E0
+    js = joints_of(m, nb, ref)
+    _, Vp = project_joints(X, V, js, ref_t, seg, 3, mass)
+    P2, L2, _ = _chain_momenta(ds, X, Vp, ref_t, seg, mass)
+    assert np.linalg.norm(P2 - P0) + np.linalg.norm(L2 - L0) > 0.01 * (np.linalg.norm(P0) + np.linalg.norm(L0))
+
+
+def test_the_joint_velocity_rule_is_refused_where_it_has_nothing_to_project():
+    ct = MODELS["constant-twist"]
+    with pytest.raises(ValueError, match="joint_velocities must be one of 'parent', 'momentum'"):
+        ct.Config(dynamics=True, joints=True, joint_velocities="average")
+    with pytest.raises(ValueError, match="set dynamics = true and joints = true"):
+        ct.Config(dynamics=True, joint_velocities="momentum")
 
 
 def test_the_joint_angles_read_from_the_bodies_poses_are_mujocos_qpos():

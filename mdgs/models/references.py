@@ -45,7 +45,7 @@ from mdgs.graphs import SceneGraph
 from mdgs.joints import JointSet, joints_of, project_joints
 from mdgs.models.base import ModelError, Simulator, State
 from mdgs.rigid import advance, project, twist
-from mdgs.tree import tree_step, warn_unprojected
+from mdgs.tree import JOINT_VELOCITIES, tree_step, warn_unprojected
 
 __all__ = ["ConstantTwist", "ConstantTwistConfig", "MuJoCoReference", "MuJoCoConfig"]
 
@@ -78,6 +78,9 @@ class ConstantTwistConfig:
     gyroscopic : with ``dynamics``, "explicit" (the gyroscopic terms at each step's start), "implicit" (at its
         end) or "midpoint" (halfway), linearised: each body's gyroscopic torque and a hinge's cross-axis velocity
         terms (:data:`mdgs.actuation.GYROSCOPIC`); the label gains ", implicit gyroscopic" or ", midpoint gyroscopic".
+    joint_velocities : with ``dynamics`` and ``joints``, "parent" (each child takes its parent's twist across the
+        joint) or "momentum" (the least kinetic-energy change, equal and opposite impulses at the joints:
+        :func:`mdgs.actuation.project_velocities`); the label gains ", momentum projection".
     """
 
     motors: bool = False
@@ -88,6 +91,7 @@ class ConstantTwistConfig:
     push_out: bool = False
     substeps: int = 1
     gyroscopic: str = "explicit"
+    joint_velocities: str = "parent"
 
     def __post_init__(self):
         for k in ("motors", "joints", "coupled", "dynamics", "trapezoidal", "push_out"):
@@ -107,6 +111,12 @@ class ConstantTwistConfig:
         gyroscopic_weight(self.gyroscopic)  # a rule it does not know raises, naming the rules
         if self.gyroscopic != "explicit" and not self.dynamics:
             raise ValueError("gyroscopic sets how the rigid tree's forward dynamics steps; set dynamics = true with it")
+        if self.joint_velocities not in JOINT_VELOCITIES:
+            raise ValueError(f"joint_velocities must be one of {', '.join(map(repr, JOINT_VELOCITIES))}, "
+                             f"got {self.joint_velocities!r}")
+        if self.joint_velocities != "parent" and not (self.dynamics and self.joints):
+            raise ValueError("joint_velocities sets how the rigid tree's twists are projected onto its joints; "
+                             "set dynamics = true and joints = true with it")
 
 
 class ConstantTwist(Simulator):
@@ -139,7 +149,7 @@ class ConstantTwist(Simulator):
         if self.config.dynamics:  # the whole tree's forward dynamics, in substeps (mdgs.tree)
             xn, vn = tree_step(x, v, ctrl, self._drives, ref, seg, sc.n_obj, mass, self._dt, self.config.substeps,
                                self.config.trapezoidal, self.config.push_out, self._joints,
-                               self.config.gyroscopic)
+                               self.config.gyroscopic, self.config.joint_velocities)
             return State(torch.where(m, xn, x), torch.where(m, vn, torch.zeros_like(vn)))
         tw = twist(x, v, seg, sc.n_obj, mass)
         vc, w = tw.vc, tw.omega
