@@ -855,7 +855,8 @@ def push_out(x: torch.Tensor, v: torch.Tensor, drives: DriveSet, ref: torch.Tens
 
 
 def project_velocities(x: torch.Tensor, v: torch.Tensor, drives: DriveSet, ref: torch.Tensor, seg: torch.Tensor,
-                       n_obj: int, mass: torch.Tensor, x_from: torch.Tensor | None = None) -> torch.Tensor:
+                       n_obj: int, mass: torch.Tensor, x_from: torch.Tensor | None = None,
+                       dt: float | None = None) -> torch.Tensor:
     """The objects' twists made to satisfy the joints by the least kinetic energy change: node velocities [B, N, 3].
 
     The joints' rows ``J`` of the tree at the poses of ``x`` [B, N, 3] (:func:`coupled_motor_accelerations`: a
@@ -873,8 +874,12 @@ def project_velocities(x: torch.Tensor, v: torch.Tensor, drives: DriveSet, ref: 
     (rotational-center's) moves the rotor to the carrier instead of both to their common motion.
     ``x_from``: the nodes that ``v`` belongs to, when ``x`` is their projected placement (each body's twist,
     fitted to ``x_from, v``, is carried to ``x`` as a body property: the velocity of its mass centre and its
-    angular velocity); default ``x``. Returns ``v'`` in ``v``'s dtype, velocities of the rigid motions at ``x``;
-    ``v`` unchanged without joints."""
+    angular velocity); default ``x``. ``dt``: the corners the world's surfaces hold over ``dt`` (:func:`contacts`)
+    keep their velocities, rows ``J_c d nu = 0`` (three for a sticking corner, the normal for a sliding one, with
+    ``CONTACT_COMPLIANCE``; a corner whose surface would have to pull is let go, ``CONTACT_PASSES`` passes), so
+    that the joints' impulses do not move a body its contacts hold (a resting cube under its flywheels), as they
+    would otherwise. Returns ``v'`` in ``v``'s dtype, velocities of the rigid motions at ``x``; ``v`` unchanged
+    without joints."""
     if not drives.links and not drives.constants()["fixed"]:
         return v
     dev, f64 = x.device, torch.float64
@@ -896,9 +901,38 @@ def project_velocities(x: torch.Tensor, v: torch.Tensor, drives: DriveSet, ref: 
     nu = torch.cat([v_ms, tw.omega], -1).reshape(B, 6 * S)
     Jm = torch.cat(J, 1)
     C = Jm.shape[1]
-    K = torch.cat([torch.cat([M, Jm.transpose(-1, -2)], -1), torch.cat([Jm, xd.new_zeros(B, C, C)], -1)], 1)
-    b = torch.cat([xd.new_zeros(B, 6 * S), -(Jm @ nu.unsqueeze(-1)).squeeze(-1)], -1)
-    z = (nu + _solve(K, b)[:, :6 * S]).view(B, S, 6)
+    b_j = -(Jm @ nu.unsqueeze(-1)).squeeze(-1)
+    rows, on = xd.new_zeros(B, 0, 6 * S), xd.new_zeros(B, 0)
+    if dt is not None and (len(drives.corner_obj) or len(drives.rim_obj)):
+        ct = contacts(R, t, Twist(xs, v_ms, tw.omega, tw.J), drives, dt)  # the twists about the mass centres
+        held = ct.held  # [B, Q]
+        if not bool(held.any()):
+            dt = None
+        else:
+            sel = torch.argsort((~held).to(torch.int8), dim=-1, stable=True)[:, :int(held.sum(-1).max())]
+            held = torch.gather(held, 1, sel)
+            obj = ct.obj[sel]  # [B, n]
+            frame = torch.gather(ct.frame, 1, sel.view(*sel.shape, 1, 1).expand(-1, -1, 3, 3))
+            arm = torch.gather(ct.P, 1, sel.unsqueeze(-1).expand(-1, -1, 3)) - torch.gather(
+                xs, 1, obj.unsqueeze(-1).expand(-1, -1, 3))
+            loc = torch.cat([frame, torch.linalg.cross(arm.unsqueeze(-2).expand_as(frame), frame, dim=-1)], -1)
+            onehot = torch.nn.functional.one_hot(obj, S).to(f64)  # [B, n, S]
+            rows = torch.einsum("bcrk,bcs->bcrsk", loc, onehot).reshape(B, -1, 6 * S)  # [B, 3n, 6S]
+            slide = torch.gather(ct.slide, 1, sel)
+            on = (held.unsqueeze(-1) & torch.stack([~slide, ~slide, torch.ones_like(slide)], -1)).to(f64).view(B, -1)
+    for _ in range(CONTACT_PASSES if dt is not None else 1):
+        Jall = torch.cat([Jm, rows * on.unsqueeze(-1)], 1)
+        diag = torch.cat([xd.new_zeros(B, C), torch.where(on > 0, -CONTACT_COMPLIANCE, 1.0)], -1)
+        K = torch.cat([torch.cat([M, Jall.transpose(-1, -2)], -1), torch.cat([Jall, torch.diag_embed(diag)], -1)], 1)
+        sol = _solve(K, torch.cat([xd.new_zeros(B, 6 * S), b_j, torch.zeros_like(on)], -1))
+        if dt is None:
+            break
+        lz = sol[:, 6 * S + C:].view(B, -1, 3)[..., 2]  # the push of each held corner's surface is -lz
+        pulls = (lz > 0) & (on.view(B, -1, 3)[..., 2] > 0)
+        if not bool(pulls.any()):
+            break
+        on = on * (~pulls).to(f64).repeat_interleave(3, -1)
+    z = (nu + sol[:, :6 * S]).view(B, S, 6)
     out = z[:, seg, :3] + torch.linalg.cross(z[:, seg, 3:], xd - xs[:, seg], dim=-1)
     return out.to(v.dtype)
 

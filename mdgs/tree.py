@@ -70,7 +70,7 @@ def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: Driv
         if joints:  # on the pose fitted for the push-out, where that left x, v as they were
             xj, vj = project_joints(x, v, joints, ref, seg, n_obj, mass, pose)
             if joint_velocities == "momentum":
-                vj = project_velocities(xj, v, drives, ref, seg, n_obj, mass, x_from=x)
+                vj = project_velocities(xj, v, drives, ref, seg, n_obj, mass, x_from=x, dt=h)
             x, v, pose = xj, vj, None
     return x, v
 
