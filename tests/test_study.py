@@ -818,6 +818,33 @@ def test_finer_partitions_get_their_own_references_and_the_resolution_ratio_uses
     assert _resolution_table(lines[:1] + lines[2:]).rows[1][col] == "-"  # no refine-2 reference yet: no ratio
 
 
+def test_rigid_tree_momentum_adds_the_last_rigid_tree_row_projected_by_impulses(tmp_path):
+    """``[references] rigid_tree_momentum = true`` adds, per scene, the last rigid-tree row with its twists projected
+    onto the joints by impulses (``ConstantTwistConfig.joint_velocities = "momentum"``), labelled as the reference
+    names itself; it needs ``rigid_tree`` and ``joints``. MDGS takes the rule for its prior's tree only with
+    substeps and joints."""
+    from mdgs.evaluate import reference_label
+
+    base = GOOD + ("[references]\njoints = true\nrigid_tree = true\nrigid_tree_trapezoidal = true\n"
+                   "rigid_tree_push_out = true\nrigid_tree_substeps = [4]\n")
+    study = load_study(_write(tmp_path, base))
+    more = load_study(_write(tmp_path, base + "rigid_tree_momentum = true\n"))
+    new = [c for c in cells_of(more) if c.key(more) not in {k.key(study) for k in cells_of(study)}]
+    assert {c.label for c in new} == {"rigid tree + joints, trapezoidal, push-out, 4 substeps, momentum projection"}
+    assert len(new) == len(study.scenes)
+    ct = MODELS["constant-twist"]
+    for c in new:
+        assert reference_label(ct(ct.Config(**dict(c.settings)))) == c.label
+    with pytest.raises(StudyError, match="set rigid_tree = true and joints = true"):
+        load_study(_write(tmp_path, GOOD + "[references]\nrigid_tree = true\nrigid_tree_momentum = true\n"))
+    md = MODELS["mdgs"]
+    md.Config(actuation="dynamics", prior_substeps=4, joint_velocities="momentum")
+    with pytest.raises(ValueError, match="prior_substeps above 1 and joints = true"):
+        md.Config(actuation="dynamics", joint_velocities="momentum")
+    with pytest.raises(ValueError, match="prior_substeps above 1 and joints = true"):
+        md.Config(actuation="dynamics", prior_substeps=4, joints=False, joint_velocities="momentum")
+
+
 def test_rigid_tree_gyroscopic_adds_the_last_rigid_tree_row_with_each_rule_of_the_gyroscopic_terms(tmp_path):
     """``[references] rigid_tree_gyroscopic = ["implicit", "midpoint"]`` adds, per scene, the last rigid-tree row with
     each rule (``ConstantTwistConfig.gyroscopic``), labelled as the reference names itself; the other cells keep

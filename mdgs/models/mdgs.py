@@ -56,7 +56,7 @@ from mdgs.models.integrators import INTEGRATORS
 from mdgs.models.layers import GCN
 from mdgs.rigid import advance, perturb, project, twist
 from mdgs.structure import align_with_pose
-from mdgs.tree import tree_step, warn_unprojected
+from mdgs.tree import JOINT_VELOCITIES, tree_step, warn_unprojected
 
 __all__ = ["MDGSConfig", "ModelConfig", "VARIANTS", "Prediction", "MDGS", "MDGSNoConstraint",
            "MDGSSingleSpeed", "noise_sigmas", "CUBLI_NOISE", "INCREMENT_NOISE"]
@@ -202,6 +202,9 @@ class MDGSConfig:
     gyroscopic : with ``actuation = "dynamics"``, when in each of the rigid tree's steps the gyroscopic terms
         act (:data:`mdgs.actuation.GYROSCOPIC`): "explicit" at its start, "implicit" at its end or "midpoint"
         halfway, linearised, so that a rotor spun fast on a light carrier does not gain energy.
+    joint_velocities : with ``prior_substeps`` above 1 and ``joints``, how the prior's rigid tree projects its twists
+        onto the joints after each substep (:data:`mdgs.tree.JOINT_VELOCITIES`): "parent" (each child takes its
+        parent's twist across the joint) or "momentum" (the least kinetic-energy change, impulses at the joints).
     scales : where the scales left at 1.0 (``dx_scale``, ``dv_scale`` and, with ``object_scales``, the
         per-object ones) come from: "increments" (the std of the frame's increments under the integrator,
         as without priors g predicts them) or "residual" (what g must add to its zero output, that is to
@@ -247,6 +250,7 @@ class MDGSConfig:
     push_out: bool = False
     prior_substeps: int = 1
     gyroscopic: str = "explicit"
+    joint_velocities: str = "parent"
     scales: str = "increments"
     noise: str = "auto"
     noise_sigma_x: float = -1.0
@@ -326,6 +330,12 @@ class MDGSConfig:
             raise ValueError("prior_substeps > 1 steps the rigid tree of the \"dynamics\" prior, whose end state the "
                              "\"rigid\" integrator corrects; set actuation = \"dynamics\" and integrator = \"rigid\"")
         gyroscopic_weight(self.gyroscopic)  # a rule it does not know raises, naming the rules
+        if self.joint_velocities not in JOINT_VELOCITIES:
+            raise ValueError(f"joint_velocities must be one of {', '.join(map(repr, JOINT_VELOCITIES))}, "
+                             f"got {self.joint_velocities!r}")
+        if self.joint_velocities != "parent" and not (self.prior_substeps > 1 and self.joints):
+            raise ValueError("joint_velocities sets how the prior's rigid tree projects its twists onto the joints; "
+                             "set actuation = \"dynamics\", prior_substeps above 1 and joints = true with it")
         if self.gyroscopic != "explicit" and self.actuation != "dynamics":
             raise ValueError("gyroscopic sets how the rigid tree of the \"dynamics\" prior steps; set actuation = "
                              "\"dynamics\" with it")
@@ -872,7 +882,7 @@ class MDGS(Simulator):
             seg, mass, ref = scene.obj.to(dev), scene.mass.to(dev), scene.ref_shape.to(dev)
             xp, vp = tree_step(x.detach(), v.detach(), ctrl, self._drives, ref, seg, scene.n_obj, mass, c.dt,
                                c.prior_substeps, c.trapezoidal, c.push_out, self._joints if c.joints else None,
-                               c.gyroscopic)
+                               c.gyroscopic, c.joint_velocities)
             m = scene.moving(dev).view(1, -1, 1)
             priors.append(PriorState(torch.where(m, xp, x.detach()), torch.where(m, vp, torch.zeros_like(vp))))
         elif c.actuation == "dynamics" and ctrl is not None:  # the whole tree's forward dynamics over dt

@@ -162,6 +162,10 @@ def _reference_cells(study: StudyConfig, sc: SceneEntry, refine: int = 1) -> lis
         _, last, settings = specs[-1]
         specs += [("constant-twist", f"{last}, {g} gyroscopic", tuple(sorted(settings + (("gyroscopic", g),))))
                   for g in study.rigid_tree_gyroscopic]
+    if study.rigid_tree_momentum:  # the last rigid tree row with its twists projected onto the joints by impulses
+        _, last, settings = specs[-1]
+        specs.append(("constant-twist", f"{last}, momentum projection",
+                      tuple(sorted(settings + (("joint_velocities", "momentum"),)))))
     specs += [("mujoco", f"mujoco dt x{k}", (("dt_factor", k),)) for k in study.mujoco_dt_factors]
     return [Cell("reference", sc, model, label + tail, settings, refine=refine) for model, label, settings in specs]
 
