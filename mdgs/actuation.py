@@ -596,6 +596,26 @@ def pose_of(x: torch.Tensor, v: torch.Tensor | None, ref: torch.Tensor, seg: tor
     return Pose(R, t, twist(xd, v, seg, n_obj, mass.to(dev)) if v is not None else None)
 
 
+def _slots(mask: torch.Tensor, static: bool) -> torch.Tensor:
+    """Indices [B, n] of each batch row's candidates with ``mask`` [B, C] first: as many as the batch's most (at
+    least one) eagerly; compiled (``static``), all C, so that no shape follows the state."""
+    order = torch.argsort((~mask).to(torch.int8), dim=-1, stable=True)
+    return order if static else order[:, :max(int(mask.sum(-1).max()), 1)]
+
+
+def _contact_rows(frame: torch.Tensor, P: torch.Tensor, obj: torch.Tensor, xs: torch.Tensor, S: int) -> torch.Tensor:
+    """Rows [B, n, 3, 6S] over the objects' stacked accelerations ``(a_s, alpha_s)`` (or twists) of the contact
+    points ``P`` [B, n, 3] of objects ``obj`` ([n] or [B, n]) along their frames ``frame`` [B, n, 3, 3] (rows: two
+    tangents and the normal, :class:`Contacts`): ``d . (a_s + alpha_s x r) = d . a_s + (r x d) . alpha_s`` with
+    ``r`` the point's offset from its object's mass centre ``xs`` [B, S, 3]."""
+    B = frame.shape[0]
+    obj = obj.expand(B, -1)
+    arm = P - torch.gather(xs, 1, obj.unsqueeze(-1).expand(-1, -1, 3))  # [B, n, 3]
+    loc = torch.cat([frame, torch.linalg.cross(arm.unsqueeze(-2).expand_as(frame), frame, dim=-1)], -1)
+    onehot = torch.nn.functional.one_hot(obj, S).to(frame.dtype)  # [B, n, S]
+    return torch.einsum("bcrk,bcs->bcrsk", loc, onehot).reshape(B, -1, 3, 6 * S)
+
+
 def _rows(S: int, B: int, like: torch.Tensor, c: int, p: int, D: torch.Tensor, arm_c: torch.Tensor | None = None,
           arm_p: torch.Tensor | None = None) -> torch.Tensor:
     """Rows [B, k, 6 S] over the objects' stacked accelerations ``(a_s, alpha_s)`` of the relative acceleration of
@@ -822,20 +842,14 @@ def push_out(x: torch.Tensor, v: torch.Tensor, drives: DriveSet, ref: torch.Tens
         return x, v
     # eager, the penetrating corners first, as many slots as the batch's most (a scene with many colliding boxes
     # has hundreds of candidates and a handful inside); compiled, every candidate keeps its slot (static shapes)
-    C = active.shape[-1]
-    if static:
-        sel = torch.arange(C, device=dev).expand(B, C)
-    else:
-        sel = torch.argsort((~active).to(torch.int8), dim=-1, stable=True)[:, :max(int(active.sum(-1).max()), 1)]
-    active, gap, obj = torch.gather(active, 1, sel), torch.gather(ct.gap, 1, sel), ct.obj[sel]  # [B, n]
+    sel = _slots(active, static)
+    active, gap = torch.gather(active, 1, sel), torch.gather(ct.gap, 1, sel)  # [B, n]
     xs, M, _, J, _, _ = _tree(xd, R, t, T, drives, S, None)
     Jm = torch.cat(J, 1) if J else xd.new_zeros(B, 0, 6 * S)
     C0 = Jm.shape[1]
+    frame = torch.gather(ct.frame, 1, sel.view(*sel.shape, 1, 1).expand(-1, -1, 3, 3))
     P = torch.gather(ct.P, 1, sel.unsqueeze(-1).expand(-1, -1, 3))
-    arm = P - torch.gather(xs, 1, obj.unsqueeze(-1).expand(-1, -1, 3))  # [B, n, 3]
-    n = torch.gather(ct.frame[:, :, 2], 1, sel.unsqueeze(-1).expand(-1, -1, 3))
-    onehot = torch.nn.functional.one_hot(obj, S).to(f64)  # [B, n, S]
-    Nc = torch.einsum("bck,bcs->bcsk", torch.cat([n, torch.linalg.cross(arm, n, dim=-1)], -1), onehot).reshape(B, -1, 6 * S)
+    Nc = _contact_rows(frame, P, ct.obj[sel], xs, S)[:, :, 2]  # the normal rows [B, n, 6S]
     for _ in range(CONTACT_PASSES):
         on = active.to(f64)
         Jall = torch.cat([Jm, Nc * on.unsqueeze(-1)], 1)
@@ -909,15 +923,11 @@ def project_velocities(x: torch.Tensor, v: torch.Tensor, drives: DriveSet, ref: 
         if not bool(held.any()):
             dt = None
         else:
-            sel = torch.argsort((~held).to(torch.int8), dim=-1, stable=True)[:, :int(held.sum(-1).max())]
+            sel = _slots(held, False)
             held = torch.gather(held, 1, sel)
-            obj = ct.obj[sel]  # [B, n]
             frame = torch.gather(ct.frame, 1, sel.view(*sel.shape, 1, 1).expand(-1, -1, 3, 3))
-            arm = torch.gather(ct.P, 1, sel.unsqueeze(-1).expand(-1, -1, 3)) - torch.gather(
-                xs, 1, obj.unsqueeze(-1).expand(-1, -1, 3))
-            loc = torch.cat([frame, torch.linalg.cross(arm.unsqueeze(-2).expand_as(frame), frame, dim=-1)], -1)
-            onehot = torch.nn.functional.one_hot(obj, S).to(f64)  # [B, n, S]
-            rows = torch.einsum("bcrk,bcs->bcrsk", loc, onehot).reshape(B, -1, 6 * S)  # [B, 3n, 6S]
+            P = torch.gather(ct.P, 1, sel.unsqueeze(-1).expand(-1, -1, 3))
+            rows = _contact_rows(frame, P, ct.obj[sel], xs, S).reshape(B, -1, 6 * S)  # [B, 3n, 6S]
             slide = torch.gather(ct.slide, 1, sel)
             on = (held.unsqueeze(-1) & torch.stack([~slide, ~slide, torch.ones_like(slide)], -1)).to(f64).view(B, -1)
     for _ in range(CONTACT_PASSES if dt is not None else 1):
@@ -1152,9 +1162,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     if dynamic and (len(drives.corner_obj) or len(drives.rim_obj)):
         ct = contacts(R, t, tw, drives, dt)
         arm = ct.P - xs[:, ct.obj]  # [B, C, 3]
-        loc = torch.cat([ct.frame, torch.linalg.cross(arm.unsqueeze(-2).expand_as(ct.frame), ct.frame, dim=-1)], -1)
-        onehot = torch.nn.functional.one_hot(ct.obj, S).to(f64)  # [C, S]
-        Jc = torch.einsum("bcrk,cs->bcrsk", loc, onehot).reshape(B, -1, 3, 6 * S)
+        Jc = _contact_rows(ct.frame, ct.P, ct.obj, xs, S)  # [B, C, 3, 6S]
         wk = w[:, ct.obj]
         want = -torch.linalg.cross(wk, torch.linalg.cross(wk, arm, dim=-1), dim=-1) - ct.u / dt
         ut = (ct.frame[:, :, :2] @ ct.u.unsqueeze(-1)).squeeze(-1)  # [B, C, 2] the slip
@@ -1223,9 +1231,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     tangents = torch.tensor([True, True, False], device=dev)  # which of a candidate's rows are its tangents
     for _ in range(CONTACT_PASSES if contact else 1):
         if contact:  # the held corners first, as many slots as the batch's most held corners
-            order = torch.argsort((~active).to(torch.int8), dim=-1, stable=True)
-            n_on = active.shape[-1] if static else max(int(active.sum(-1).max()), 1)
-            sel = order[:, :n_on]  # [B, n_on]
+            sel = _slots(active, static)  # [B, n_on]
+            n_on = sel.shape[-1]
             on = (torch.gather(active, 1, sel).unsqueeze(-1)
                   & torch.gather(rows_on, 1, sel.view(B, n_on, 1).expand(-1, -1, 3))).to(f64).view(B, 3 * n_on)
             idx = sel.view(B, n_on, 1, 1).expand(-1, -1, 3, 6 * S)
