@@ -26,12 +26,19 @@ from mdgs.actuation import (
 from mdgs.joints import JointSet, project_joints
 from mdgs.rigid import advance, project
 
-__all__ = ["JOINT_VELOCITIES", "tree_step", "warn_unprojected"]
+__all__ = ["JOINT_VELOCITIES", "check_joint_velocities", "tree_step", "warn_unprojected"]
 
 #: How :func:`tree_step` projects the twists onto the joints: "parent" (each child takes its parent's twist
 #: across the joint, :func:`mdgs.joints.project_joints`) or "momentum" (the least kinetic-energy change,
 #: impulses at the joints: :func:`mdgs.actuation.project_velocities`).
 JOINT_VELOCITIES = ("parent", "momentum")
+
+
+def check_joint_velocities(rule: str) -> None:
+    """Raise ``ValueError`` naming the rules when ``rule`` is not one of ``JOINT_VELOCITIES`` (the configs of the
+    rigid tree and of MDGS check theirs with it)."""
+    if rule not in JOINT_VELOCITIES:
+        raise ValueError(f"joint_velocities must be one of {', '.join(map(repr, JOINT_VELOCITIES))}, got {rule!r}")
 
 
 def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
@@ -48,9 +55,7 @@ def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: Driv
     the parent's across each joint ("parent", :func:`mdgs.joints.project_joints`) or the least kinetic-energy
     change that keeps the joints' momentum ("momentum", :func:`mdgs.actuation.project_velocities`). Static nodes
     are moved like any other: the caller keeps them in place."""
-    if joint_velocities not in JOINT_VELOCITIES:
-        raise ValueError(f"joint_velocities must be one of {', '.join(map(repr, JOINT_VELOCITIES))}, "
-                         f"got {joint_velocities!r}")
+    check_joint_velocities(joint_velocities)
     h = dt / substeps
     pose = None  # the objects' poses and twists at x, v, fitted once per state
     for _ in range(substeps):

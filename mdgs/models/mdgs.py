@@ -56,7 +56,7 @@ from mdgs.models.integrators import INTEGRATORS
 from mdgs.models.layers import GCN
 from mdgs.rigid import advance, perturb, project, twist
 from mdgs.structure import align_with_pose
-from mdgs.tree import JOINT_VELOCITIES, tree_step, warn_unprojected
+from mdgs.tree import check_joint_velocities, tree_step, warn_unprojected
 
 __all__ = ["MDGSConfig", "ModelConfig", "VARIANTS", "Prediction", "MDGS", "MDGSNoConstraint",
            "MDGSSingleSpeed", "noise_sigmas", "CUBLI_NOISE", "INCREMENT_NOISE"]
@@ -330,9 +330,7 @@ class MDGSConfig:
             raise ValueError("prior_substeps > 1 steps the rigid tree of the \"dynamics\" prior, whose end state the "
                              "\"rigid\" integrator corrects; set actuation = \"dynamics\" and integrator = \"rigid\"")
         gyroscopic_weight(self.gyroscopic)  # a rule it does not know raises, naming the rules
-        if self.joint_velocities not in JOINT_VELOCITIES:
-            raise ValueError(f"joint_velocities must be one of {', '.join(map(repr, JOINT_VELOCITIES))}, "
-                             f"got {self.joint_velocities!r}")
+        check_joint_velocities(self.joint_velocities)
         if self.joint_velocities != "parent" and not (self.prior_substeps > 1 and self.joints):
             raise ValueError("joint_velocities sets how the prior's rigid tree projects its twists onto the joints; "
                              "set actuation = \"dynamics\", prior_substeps above 1 and joints = true with it")

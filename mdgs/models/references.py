@@ -45,7 +45,7 @@ from mdgs.graphs import SceneGraph
 from mdgs.joints import JointSet, joints_of, project_joints
 from mdgs.models.base import ModelError, Simulator, State
 from mdgs.rigid import advance, project, twist
-from mdgs.tree import JOINT_VELOCITIES, tree_step, warn_unprojected
+from mdgs.tree import check_joint_velocities, tree_step, warn_unprojected
 
 __all__ = ["ConstantTwist", "ConstantTwistConfig", "MuJoCoReference", "MuJoCoConfig"]
 
@@ -111,9 +111,7 @@ class ConstantTwistConfig:
         gyroscopic_weight(self.gyroscopic)  # a rule it does not know raises, naming the rules
         if self.gyroscopic != "explicit" and not self.dynamics:
             raise ValueError("gyroscopic sets how the rigid tree's forward dynamics steps; set dynamics = true with it")
-        if self.joint_velocities not in JOINT_VELOCITIES:
-            raise ValueError(f"joint_velocities must be one of {', '.join(map(repr, JOINT_VELOCITIES))}, "
-                             f"got {self.joint_velocities!r}")
+        check_joint_velocities(self.joint_velocities)
         if self.joint_velocities != "parent" and not (self.dynamics and self.joints):
             raise ValueError("joint_velocities sets how the rigid tree's twists are projected onto its joints; "
                              "set dynamics = true and joints = true with it")
