@@ -20,7 +20,9 @@ With ``--compile`` every torch model is measured a second time with its step com
 (:func:`mdgs.models.compile_step`; ``--compile aot`` ahead of time with AOTInductor, ``--compile
 inductor aot`` both, ``cudagraphs`` replayed as CUDA graphs on a GPU), printed as ``NAME compiled`` (``NAME aot``) with the seconds its first steps
 spent compiling, and its rollout of the test trajectories is compared with the eager one (largest
-position difference).
+position difference). Ahead of time a model may fold products of weights into constants
+(:func:`mdgs.models.layers.folded_weights`: MDGS skips one ``[hidden, hidden]`` product a step), so
+the FLOP rate of an ``aot`` row counts that folded step's FLOPs, and its floor is printed beside it.
 
 The data is a ``tiny`` dataset of the scene written to a temporary folder. Untrained weights:
 the cost of a step does not depend on training.
@@ -33,6 +35,7 @@ product is launch-bound there), in float32 without TF32, the precision the model
 from __future__ import annotations
 
 import argparse
+import contextlib
 import statistics
 import tempfile
 import time
@@ -50,6 +53,7 @@ from mdgs.evaluate.cost import step_cost
 from mdgs.evaluate.rollout import rollout
 from mdgs.models import MODELS, Simulator, batch_of, compile_step
 from mdgs.models.base import COMPILE_MODES
+from mdgs.models.layers import folded_weights
 
 
 def median_time(fn, repeats: int, warmup: int = 2) -> float:
@@ -112,12 +116,30 @@ def _matmul_rate(device: torch.device, repeats: int = 20) -> tuple[float, int]:
     return 2.0 * rows * 200 * 200 / median_time(mm, repeats), rows
 
 
+def step_flops(model: Simulator, te: SplitData, batch: int, folded: bool = False) -> int:
+    """FLOPs (``FlopCounterMode``) of one eager step of ``model`` on ``batch`` trajectories of ``te``; with
+    ``folded``, of the step an ahead-of-time compiled model runs (inside :func:`folded_weights`, its
+    weight products computed once before counting, as AOTInductor folds them when the package loads)."""
+    model.bind(te)
+    st = model.initial_state(te, np.arange(batch) % te.x.shape[0], model.history)
+    ctrl = torch.from_numpy(te.ctrl[np.arange(batch) % te.x.shape[0], model.history]).to(model.device)
+    with torch.no_grad(), folded_weights() if folded else contextlib.nullcontext():
+        if folded:
+            model.step(st, ctrl)  # computes (and caches) the weight products outside the count
+        with FlopCounterMode(display=False) as fc:
+            model.step(st, ctrl)
+    return fc.get_total_flops()
+
+
 def _compiled_line(label: str, model: Simulator, te: SplitData, args, mode: str = "inductor",
                    flops: list[float] | None = None, rate: float = 0.0) -> str:
     """The model with its step compiled: ms per trajectory-frame at each batch (after the compiling
     first steps, whose seconds are printed), the FLOP rate at each batch against ``rate`` where the eager
-    step's FLOPs per batch ``flops`` are given (the compiled step's are the same), and the largest position
-    difference of a rollout of every test trajectory against the eager step."""
+    step's FLOPs per batch ``flops`` are given (the compiled step's are the same, except ahead of time:
+    counted again with the weights folded, :func:`step_flops`), and the largest position difference of a
+    rollout of every test trajectory against the eager step."""
+    if flops and mode == "aot":
+        flops = [step_flops(model, te, b, folded=True) for b in args.batches]
     eager = rollout(model, te, model.device)
     name = label + (" compiled" if mode == "inductor" else f" {mode}")
     t0 = time.perf_counter()
@@ -133,8 +155,9 @@ def _compiled_line(label: str, model: Simulator, te: SplitData, args, mode: str 
     diff = float(np.nanmax(np.abs(compiled.x - eager.x)))
     frac = "/".join(f"{100 * f / (c['ms_per_frame'] * 1e-3) / rate:.0f}" for f, c in zip(flops, costs, strict=True)) \
         if flops else ""
+    floor = f", floor {1e3 * flops[-1] / args.batches[-1] / rate:.4f} ms/tf (weights folded)" if flops and mode == "aot" else ""
     return (f"{name:22s}{'':>10s}{'':>10s}" + "".join(f"{c['ms_per_trajectory_frame']:>{_col(c['batch'])}.3f}" for c in costs)
-            + f"{frac:>12s}   compile {compile_s:.0f} s, rollout max |dx| {diff:.1e} m")
+            + f"{frac:>12s}   compile {compile_s:.0f} s, rollout max |dx| {diff:.1e} m{floor}")
 
 
 def main() -> None:
@@ -198,11 +221,7 @@ def main() -> None:
                 model.bind(te)
                 fracs = []
                 for b, c in zip(args.batches, costs, strict=True):
-                    st = model.initial_state(te, np.arange(b) % te.x.shape[0], model.history)
-                    ctrl = torch.from_numpy(te.ctrl[np.arange(b) % te.x.shape[0], model.history]).to(model.device)
-                    with torch.no_grad(), FlopCounterMode(display=False) as fc:
-                        model.step(st, ctrl)
-                    flops = fc.get_total_flops()
+                    flops = step_flops(model, te, b)
                     counted.append(flops)
                     fracs.append(f"{100 * flops / (c['ms_per_frame'] * 1e-3) / rate:.0f}")
                 frac = "/".join(fracs)

@@ -17,7 +17,8 @@ import contextlib
 import numpy as np
 import torch
 
-__all__ = ["kabsch", "align_to_reference", "align_with_pose", "segment_mean", "fixes_rotation", "det3", "solve3"]
+__all__ = ["kabsch", "align_to_reference", "align_with_pose", "segment_mean", "fixes_rotation", "det3", "solve3",
+           "rotation_fit", "ROTATION_FITS"]
 
 
 def fixes_rotation(ref: np.ndarray) -> bool:
@@ -113,11 +114,13 @@ def kabsch(ref: torch.Tensor, pred: torch.Tensor, seg: torch.Tensor, n_seg: int 
     Computed in float64. The SVD of the cross-covariance ``H = sum_i w_i p~_i q~_i^T = U S V^T``
     gives ``R = V diag(1, 1, d) U^T`` with ``d = sign(det(V U^T))`` (reflection correction).
     Segments with fewer than three non-collinear nodes have a non-unique rotation; the
-    aligned positions are still exact for them. Inside :func:`horn_rotations` the same optimum
-    comes from :func:`rotation_horn` instead: ``torch.linalg.svd`` reads its error flag on the host,
-    which stops a step from being captured as a CUDA graph (``compile_step(model, "cudagraphs")``
-    traces the step inside it); eagerly the SVD, one library call, is the cheaper (Horn's method is
-    some 120 small operations, each launched on its own unless the step is compiled).
+    aligned positions are still exact for them. Inside :func:`rotation_fit` the same optimum comes
+    from Horn's quaternion (:func:`rotation_horn`, matrix products: ``torch.linalg.svd`` reads its
+    error flag on the host, which stops a step from being captured as a CUDA graph) or from Jacobi
+    rotations (:func:`rotation_jacobi`, elementwise arithmetic that a compiler fuses into one kernel,
+    where the SVD of a compiled step is a library call with copies around it). Eagerly the SVD, one
+    library call, is the cheaper: either of the others is hundreds of small operations, each launched
+    on its own unless the step is compiled.
     """
     n_seg = int(seg.max()) + 1 if n_seg is None else n_seg
     B = pred.shape[0]
@@ -137,7 +140,7 @@ def kabsch(ref: torch.Tensor, pred: torch.Tensor, seg: torch.Tensor, n_seg: int 
     # (branch-free: no host sync, one graph under torch.compile)
     bad = ~torch.isfinite(H).flatten(-2).all(-1)  # [B, S]
     H = torch.where(bad[..., None, None], torch.eye(3, dtype=H.dtype, device=H.device), H)
-    R = rotation_horn(H) if _HORN else _rotation_svd(H)
+    R = rotation_horn(H) if _FIT == "horn" else rotation_jacobi(H) if _FIT == "jacobi" else _rotation_svd(H)
     t = cq - (R @ cp.unsqueeze(-1)).squeeze(-1)
     R = torch.where(bad[..., None, None], torch.nan, R)
     t = torch.where(bad[..., None], torch.nan, t)
@@ -155,19 +158,24 @@ def _rotation_svd(H: torch.Tensor) -> torch.Tensor:
     return V @ D @ U.transpose(-1, -2)
 
 
-_HORN = False  # set by horn_rotations(); read by kabsch (a traced step bakes in its value)
+#: The fits :func:`rotation_fit` can choose for :func:`kabsch`.
+ROTATION_FITS = ("svd", "horn", "jacobi")
+_FIT = "svd"  # set by rotation_fit(); read by kabsch (a traced step bakes in its value)
 
 
 @contextlib.contextmanager
-def horn_rotations():
-    """Within this block :func:`kabsch` fits rotations with :func:`rotation_horn` (matrix products
-    only) instead of the SVD: what a step captured as a CUDA graph must use."""
-    global _HORN
-    before, _HORN = _HORN, True
+def rotation_fit(name: str):
+    """Within this block :func:`kabsch` fits rotations by ``name``: "svd" (the default), "horn"
+    (:func:`rotation_horn`, matrix products only: what a step captured as a CUDA graph must use) or
+    "jacobi" (:func:`rotation_jacobi`, elementwise only: one fused kernel in a compiled step)."""
+    global _FIT
+    if name not in ROTATION_FITS:
+        raise ValueError(f"rotation fit {name!r} is not one of {', '.join(ROTATION_FITS)}")
+    before, _FIT = _FIT, name
     try:
         yield
     finally:
-        _HORN = before
+        _FIT = before
 
 
 #: Squarings of Horn's shifted 4x4 matrix: the top eigenvector's error shrinks as
@@ -187,15 +195,7 @@ def rotation_horn(H: torch.Tensor, squarings: int = HORN_SQUARINGS) -> torch.Ten
     no host synchronisation, so a step using it can be captured as a CUDA graph. The same optimum
     as the SVD's reflection-corrected Kabsch where that is unique (tests/test_structure.py); where
     it is not (collinear nodes, fewer than three nodes), another rotation of the same fit."""
-    Sxx, Sxy, Sxz = H[..., 0, 0], H[..., 0, 1], H[..., 0, 2]
-    Syx, Syy, Syz = H[..., 1, 0], H[..., 1, 1], H[..., 1, 2]
-    Szx, Szy, Szz = H[..., 2, 0], H[..., 2, 1], H[..., 2, 2]
-    N = torch.stack([
-        torch.stack([Sxx + Syy + Szz, Syz - Szy, Szx - Sxz, Sxy - Syx], -1),
-        torch.stack([Syz - Szy, Sxx - Syy - Szz, Sxy + Syx, Szx + Sxz], -1),
-        torch.stack([Szx - Sxz, Sxy + Syx, -Sxx + Syy - Szz, Syz + Szy], -1),
-        torch.stack([Sxy - Syx, Szx + Sxz, Syz + Szy, -Sxx - Syy + Szz], -1),
-    ], -2)  # [..., 4, 4]
+    N = torch.stack([torch.stack(row, -1) for row in _horn_matrix(H)], -2)  # [..., 4, 4]
     c = (3.0 ** 0.5) * H.flatten(-2).norm(dim=-1).clamp_min(torch.finfo(H.dtype).tiny)
     eye = torch.eye(4, dtype=H.dtype, device=H.device)
     M = (N + c[..., None, None] * eye) / (4.0 * c[..., None, None])  # PSD, eigenvalues in [0, 1/2]
@@ -205,13 +205,88 @@ def rotation_horn(H: torch.Tensor, squarings: int = HORN_SQUARINGS) -> torch.Ten
                  .clamp_min(torch.finfo(H.dtype).tiny))
     col = M.norm(dim=-2).argmax(-1)  # [...]: the column of the projector with the most weight
     q = torch.take_along_dim(M, col[..., None, None].expand(*M.shape[:-1], 1), dim=-1)[..., 0]
-    w, x, y, z = (q / q.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(H.dtype).tiny)).unbind(-1)
-    # the rotation of the unit quaternion (w, x, y, z), applied as R @ p
+    return _quaternion_rotation(*(q / q.norm(dim=-1, keepdim=True).clamp_min(torch.finfo(H.dtype).tiny)).unbind(-1))
+
+
+def _horn_matrix(H: torch.Tensor) -> list[list[torch.Tensor]]:
+    """The entries ``[4][4]`` (each ``[...]``) of Horn's symmetric ``N(H)`` (Horn 1987, Eq. 43) of
+    cross-covariances ``H`` [..., 3, 3]: its top eigenvector is the unit quaternion of the rotation
+    maximising ``tr(R H)``."""
+    Sxx, Sxy, Sxz = H[..., 0, 0], H[..., 0, 1], H[..., 0, 2]
+    Syx, Syy, Syz = H[..., 1, 0], H[..., 1, 1], H[..., 1, 2]
+    Szx, Szy, Szz = H[..., 2, 0], H[..., 2, 1], H[..., 2, 2]
+    return [[Sxx + Syy + Szz, Syz - Szy, Szx - Sxz, Sxy - Syx],
+            [Syz - Szy, Sxx - Syy - Szz, Sxy + Syx, Szx + Sxz],
+            [Szx - Sxz, Sxy + Syx, -Sxx + Syy - Szz, Syz + Szy],
+            [Sxy - Syx, Szx + Sxz, Syz + Szy, -Sxx - Syy + Szz]]
+
+
+def _quaternion_rotation(w: torch.Tensor, x: torch.Tensor, y: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+    """The rotation matrix [..., 3, 3] (applied as ``R @ p``) of the unit quaternions ``(w, x, y, z)``, each [...]."""
     return torch.stack([
         torch.stack([w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
         torch.stack([2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)], -1),
         torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z], -1),
     ], -2)
+
+
+#: Cyclic Jacobi sweeps of :func:`rotation_jacobi`: the off-diagonal part of Horn's 4x4 matrix
+#: falls quadratically, to 1e-18 of its norm (squared) after 4 sweeps and below float64's range
+#: after 5 on 20 000 random cross-covariances; with 4 the rotations of tests/test_structure.py match
+#: the SVD's to 1e-12 (with 3 they are 2e-5 off), so 5 leave a sweep to spare.
+JACOBI_SWEEPS = 5
+_JACOBI_PAIRS = ((0, 1), (2, 3), (0, 2), (1, 3), (0, 3), (1, 2))
+
+
+def rotation_jacobi(H: torch.Tensor, sweeps: int = JACOBI_SWEEPS) -> torch.Tensor:
+    """The proper rotation ``R`` [..., 3, 3] maximising ``tr(R H)`` for cross-covariances ``H``
+    [..., 3, 3], as :func:`rotation_horn`: the top eigenvector of Horn's symmetric 4x4 ``N(H)``,
+    here by cyclic Jacobi rotations (Golub & Van Loan, Matrix Computations, 4th ed., Alg. 8.5.3,
+    with the stable tangent of Alg. 8.5.1) written out entry by entry. Only elementwise arithmetic on
+    ``[...]``-shaped tensors, with no branch and no reduction until the final choice of column, so a
+    compiler fuses the whole fit into one loop: what a compiled step uses instead of the SVD
+    (:func:`kabsch`). The same optimum as the SVD's reflection-corrected Kabsch where that is unique
+    (tests/test_structure.py); where it is not, another rotation of the same fit."""
+    A = [list(row) for row in _horn_matrix(H)]
+    one, zero = torch.ones_like(A[0][0]), torch.zeros_like(A[0][0])
+    tiny = torch.finfo(H.dtype).tiny
+    V = [[one if i == j else zero for j in range(4)] for i in range(4)]  # the eigenvectors, by column
+    for _ in range(sweeps):
+        for p, q in _JACOBI_PAIRS:
+            apq = A[p][q]
+            # an exact zero (already diagonal in p, q) rotates by a negligible angle, or by any angle where
+            # a_pp = a_qq, which keeps the block diagonal
+            theta = (A[q][q] - A[p][p]) / (2 * torch.where(apq == 0, tiny, apq))
+            # the smaller root of t^2 + 2 theta t - 1 = 0 (|t| <= 1); theta^2 overflowing gives t = 0
+            t = torch.copysign(one, theta) / (theta.abs() + torch.sqrt(theta * theta + 1))
+            c = torch.rsqrt(t * t + 1)
+            s = t * c
+            for k in range(4):
+                if k != p and k != q:
+                    akp, akq = A[k][p], A[k][q]
+                    A[k][p] = A[p][k] = c * akp - s * akq
+                    A[k][q] = A[q][k] = s * akp + c * akq
+            A[p][p] = A[p][p] - t * apq
+            A[q][q] = A[q][q] + t * apq
+            A[p][q] = A[q][p] = zero
+            for k in range(4):
+                vkp, vkq = V[k][p], V[k][q]
+                V[k][p] = c * vkp - s * vkq
+                V[k][q] = s * vkp + c * vkq
+    # the column of the largest eigenvalue (the first of equal ones), chosen entry by entry: a gather
+    # of stacked columns would make the compiler evaluate the sweeps once per entry it reads
+    lam = [A[i][i] for i in range(4)]
+    q = [zero] * 4
+    taken = torch.zeros_like(one, dtype=torch.bool)
+    for j in range(4):
+        pick = ~taken
+        for i in range(4):
+            if i != j:
+                pick = pick & (lam[j] >= lam[i])
+        taken = taken | pick
+        q = [torch.where(pick, V[k][j], q[k]) for k in range(4)]
+    norm = torch.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).clamp_min(torch.finfo(H.dtype).tiny)
+    return _quaternion_rotation(*(qk / norm for qk in q))
 
 
 def align_to_reference(pred: torch.Tensor, ref: torch.Tensor, seg: torch.Tensor, n_seg: int | None = None,

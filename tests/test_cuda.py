@@ -9,7 +9,7 @@ its eager step; ``aot`` is refused there.
 Run on one H100 (2026-11-26, torch 2.11, ``benchmarks/cuda_session.sh``): the CPU-against-GPU,
 trainer and inductor tests passed (34 of them); the aot test crashed the process (now refused) and
 the capture of MDGS as a CUDA graph failed (a host-device copy inside the step). Since then the
-captured step fits rotations by Horn's method instead of the SVD (``mdgs.structure.horn_rotations``).
+captured step fits rotations by Horn's method instead of the SVD (``mdgs.structure.rotation_fit``).
 On one H200 (2026-11-27) all 37 tests passed, the CUDA-graph ones (MDGS, constant twist) included;
 on another H200 (2026-11-27, later) the 41 tests before the 4-substep push-out CUDA-graph replay passed
 (MDGS on the 4-substep prior with push-out against the CPU included), and so did the rigid tree's

@@ -259,6 +259,45 @@ def test_dense_contact_path_gives_the_sparse_paths_numbers():
     assert a.force_contact.abs().sum() > 0
 
 
+@pytest.mark.parametrize("layers", [1, 2, 3])
+def test_folding_the_global_networks_last_layer_into_the_contact_networks_first_keeps_the_prediction(layers, monkeypatch):
+    """What an ahead-of-time compiled step computes (inside ``folded_weights()``: g^Z-'s last layer and
+    g^F-'s first multiplied once, Eqs. (5)-(6)) is the unfolded prediction to float32 round-off, with
+    one, two and three layers, contacts differing per graph; the products are computed again when a
+    weight changes; training (gradients on) and a model with ``self_weight`` keep the unfolded path."""
+    from mdgs.models.layers import folded_weights
+
+    static, pos = _cubes(gap=0.001, world=True)
+    sc = SceneGraph.from_static(static, has_contact=True, contact_radius=0.11)
+    torch.manual_seed(0)
+    model = MDGS(ModelConfig(**{**SMALL, "layers": layers}))
+    g = torch.Generator().manual_seed(1)
+    x = pos.expand(4, -1, -1) + 0.02 * torch.randn(4, *pos.shape, generator=g)
+    v = torch.randn(x.shape, generator=g)
+    calls, fold = [], MDGS._contact_forces_folded
+    monkeypatch.setattr(MDGS, "_contact_forces_folded", lambda self, *a: calls.append(1) or fold(self, *a))
+    with torch.no_grad():
+        plain = model(sc, x, v)
+        assert not calls
+        with folded_weights():
+            folded = model(sc, x, v)
+            assert calls and plain.force_contact.abs().sum() > 0
+            for p, q in ((folded.force_contact, plain.force_contact), (folded.x, plain.x), (folded.v, plain.v)):
+                torch.testing.assert_close(p, q, rtol=1e-5, atol=1e-6)
+            model.global_gather.lins[-1].bias.add_(1.0)  # a changed weight: the cached products are not reused
+            again = model(sc, x, v)
+    with torch.no_grad():
+        changed = model(sc, x, v)
+    assert (again.force_contact - folded.force_contact).abs().max() > 1e-3
+    torch.testing.assert_close(again.force_contact, changed.force_contact, rtol=1e-5, atol=1e-6)
+    calls.clear()
+    with folded_weights():
+        model(sc, x, v)  # gradients on: training
+        with torch.no_grad():
+            MDGS(ModelConfig(**{**SMALL, "layers": layers, "self_weight": True}))(sc, x, v)
+    assert not calls
+
+
 def test_self_weighted_gcn_tells_a_node_from_its_neighbourhood():
     """On a complete graph (every node's neighbourhood is the whole graph) the paper's GCN gives every
     node the same output whatever their features; a separate weight on each node's own features

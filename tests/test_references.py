@@ -157,7 +157,7 @@ def test_the_cuda_graph_step_is_traced_with_horns_rotation_returns_copies_and_tu
         capture, test_split, monkeypatch):
     """The ``cudagraphs`` wrapper of :func:`compile_step`, on the CPU with ``torch.compile`` stood in for
     (no GPU here): it compiles with ``mode="reduce-overhead"``, calls the compiled step inside
-    ``horn_rotations()`` (no SVD, whose error check syncs with the host), hands back copies of the
+    ``rotation_fit("horn")`` (no SVD, whose error check syncs with the host), hands back copies of the
     replay's outputs (the next replay overwrites them), and a capture failure becomes one ModelError."""
     import mdgs.structure
     from mdgs.models import State, compile_step
@@ -169,7 +169,7 @@ def test_the_cuda_graph_step_is_traced_with_horns_rotation_returns_copies_and_tu
         seen.update(kw)
 
         def replay(state, ctrl):
-            seen["horn"] = mdgs.structure._HORN
+            seen["horn"] = mdgs.structure._FIT == "horn"
             if capture == "fails":
                 raise RuntimeError("Cannot copy between CPU and CUDA tensors during CUDA graph capture unless ...")
             seen["out"] = fn(state, ctrl)
@@ -192,7 +192,7 @@ def test_the_cuda_graph_step_is_traced_with_horns_rotation_returns_copies_and_tu
         out = ref.step(st, ctrl)
         assert out.x is not seen["out"].x and out.v is not seen["out"].v  # copies, not the replay's buffers
         torch.testing.assert_close(out.x, first.x, rtol=0, atol=0)
-    assert seen["horn"] is True and mdgs.structure._HORN is False  # Horn inside the call only
+    assert seen["horn"] is True and mdgs.structure._FIT == "svd"  # Horn inside the call only
 
 
 def test_compiled_cost_falls_back_mode_by_mode_and_says_why(test_split, monkeypatch):
@@ -254,7 +254,7 @@ def test_the_mdgs_step_traces_as_one_graph_without_breaks(test_split, settings):
     eager, 55 kernel launches and 7 graph replays a step, 1.93 ms instead of 0.47
     (docs/results/benchmarks/profile_step-cuda-h100-cudagraphs.txt). Traced here by dynamo alone (no
     inductor, seconds), on the CPU, inside Horn's rotation fit as the captured step is."""
-    from mdgs.structure import horn_rotations
+    from mdgs.structure import rotation_fit
 
     cls = MODELS["mdgs"]
     net = cls.from_data(test_split, cls.Config(**settings)).eval()
@@ -265,7 +265,7 @@ def test_the_mdgs_step_traces_as_one_graph_without_breaks(test_split, settings):
     eager = type(net).step.__get__(net)
     with torch.no_grad():
         eager(st, ctrl)  # the first step fills the scene's caches, as compile_step's first (eager) step does
-        with horn_rotations():
+        with rotation_fit("horn"):
             ex = torch._dynamo.explain(eager)(st, ctrl)
     assert ex.graph_break_count == 0, [b.reason.splitlines()[0] for b in ex.break_reasons]
     assert ex.graph_count == 1

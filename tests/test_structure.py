@@ -4,11 +4,12 @@ Reference: Kabsch (1976), Acta Cryst. A32, 922; reflection correction as in Umey
 """
 
 import numpy as np
+import pytest
 import torch
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mdgs.structure import _rotation_svd, align_to_reference, horn_rotations, kabsch, rotation_horn
+from mdgs.structure import _rotation_svd, align_to_reference, kabsch, rotation_fit, rotation_horn, rotation_jacobi
 
 
 def _rotation(q):
@@ -151,26 +152,31 @@ def _fit(R, P, Q):
     return ((torch.einsum("bij,nj->bni", R, P) - Q) ** 2).sum((1, 2))
 
 
-def test_horns_quaternion_rotation_is_the_reflection_corrected_kabsch_optimum():
-    """:func:`rotation_horn` (matrix products only: what a CUDA graph can capture) gives the SVD's
-    rotation to 1e-12 where the optimum is unique: random shapes, a cube of cells (three equal
-    singular values), a flat plate, noisy and mirrored predictions; a proper rotation (det +1,
-    orthonormal to 1e-12) every time; and where the optimum is not unique (collinear nodes, one
-    node) a rotation whose fit is as good as the SVD's."""
+@pytest.mark.parametrize("fit", [rotation_horn, rotation_jacobi], ids=["horn", "jacobi"])
+def test_quaternion_rotations_are_the_reflection_corrected_kabsch_optimum(fit):
+    """:func:`rotation_horn` (matrix products only: what a CUDA graph can capture) and
+    :func:`rotation_jacobi` (elementwise only: what a compiled step fuses) give the SVD's rotation to
+    1e-12 where the optimum is unique: random shapes, a cube of cells (three equal singular values), a
+    flat plate, noisy and mirrored predictions, rotations by nearly 180 degrees; a proper rotation
+    (det +1, orthonormal to 1e-12) every time; and where the optimum is not unique (collinear nodes,
+    one node, no spread at all) a finite rotation whose fit is as good as the SVD's."""
     rng = np.random.default_rng(0)
     cube = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], float)
     flat = np.c_[rng.normal(size=(9, 2)), np.zeros(9)]
     shapes = {"random": rng.normal(size=(10, 3)), "cube": cube, "flat": flat,
-              "mirrored": rng.normal(size=(10, 3))}
+              "mirrored": rng.normal(size=(10, 3)), "half turns": rng.normal(size=(10, 3))}
     for name, P in shapes.items():
         P = torch.tensor(P - P.mean(0))
-        Rt = torch.tensor(np.stack([_rotation(rng.normal(size=4)) for _ in range(64)]))
+        quats = rng.normal(size=(64, 4))
+        if name == "half turns":  # w near 0: the quaternion's scalar part, where a fit may pick the sign badly
+            quats[:, 0] = 1e-6 * rng.normal(size=64)
+        Rt = torch.tensor(np.stack([_rotation(q) for q in quats]))
         Q = torch.einsum("bij,nj->bni", Rt, P) + 1e-3 * torch.tensor(rng.normal(size=(64, len(P), 3)))
         if name == "mirrored":  # through a plane: no proper rotation fits, det(H) < 0
             Q = Q * torch.tensor([1.0, 1.0, -1.0], dtype=torch.float64)
         Q = Q - Q.mean(1, keepdim=True)
         H = torch.einsum("ni,bnj->bij", P, Q)
-        Rh, Rs = rotation_horn(H), _rotation_svd(H)
+        Rh, Rs = fit(H), _rotation_svd(H)
         np.testing.assert_allclose(Rh.numpy(), Rs.numpy(), atol=1e-12, err_msg=name)
         np.testing.assert_allclose(torch.linalg.det(Rh).numpy(), 1.0, atol=1e-12)
         np.testing.assert_allclose((Rh @ Rh.transpose(1, 2)).numpy(), np.broadcast_to(np.eye(3), Rh.shape), atol=1e-12)
@@ -179,7 +185,7 @@ def test_horns_quaternion_rotation_is_the_reflection_corrected_kabsch_optimum():
         Rt = torch.tensor(np.stack([_rotation(rng.normal(size=4)) for _ in range(16)]))
         Q = torch.einsum("bij,nj->bni", Rt, P)
         H = torch.einsum("ni,bnj->bij", P, Q)
-        Rh = rotation_horn(H)
+        Rh = fit(H)
         assert torch.isfinite(Rh).all()
         np.testing.assert_allclose(torch.linalg.det(Rh).numpy(), 1.0, atol=1e-12)
         np.testing.assert_allclose(_fit(Rh, P, Q).numpy(), _fit(_rotation_svd(H), P, Q).numpy(), atol=1e-20)
@@ -203,7 +209,7 @@ def test_mdgs_rolls_out_the_same_with_horns_rotation_as_with_the_svd(tiny_cubli,
     model = MODELS["mdgs"].from_data(te, ModelConfig(zero_init=False, actuation="prior"))
     svd = rollout(model, te, "cpu")
     assert not calls  # outside the block: the SVD
-    with horn_rotations():
+    with rotation_fit("horn"):
         horn = rollout(model, te, "cpu")
     assert len(calls) >= 2 * (te.x.shape[1] - 1)  # the structure's fit and the motor prior's, every step
     assert np.abs(svd.x[:, -1] - te.x[:, -1]).max() > 1e-3  # the untrained network does move things

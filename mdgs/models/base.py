@@ -26,7 +26,8 @@ import torch
 from torch import nn
 
 from mdgs.data.split import SplitData
-from mdgs.structure import horn_rotations
+from mdgs.models.layers import folded_weights
+from mdgs.structure import rotation_fit
 
 __all__ = ["State", "Batch", "Simulator", "ModelError", "batch_of", "compile_step", "COMPILE_MODES", "one_step_error"]
 
@@ -247,7 +248,12 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
     ``--compile aot``). Inference only (no gradient); the weights and the bound scene are compiled
     in: a package is reused for the same scene (by its static arrays) and batch shape, a new scene
     compiles its own, and weights changed after compiling are not seen (compile after training). A step that does not export
-    raises :class:`ModelError` naming ``inductor``.
+    raises :class:`ModelError` naming ``inductor``. The package computes what the eager step computes, in
+    another order: products of weights alone are folded into constants when it loads
+    (:func:`~mdgs.models.layers.folded_weights`), and a single trajectory's Kabsch fits use Jacobi
+    rotations instead of the SVD (:func:`mdgs.structure.rotation_fit`), so rollouts differ from the eager
+    ones by float32 round-off and what a rollout makes of it (MDGS on the tiny Cubli, every test
+    trajectory: 4e-6 m at most, benchmarks/bench_models.py ``--compile aot``).
 
     ``mode="cudagraphs"`` (CUDA only; ``torch.compile`` with ``mode="reduce-overhead"``): inductor's
     kernels recorded once per batch shape into a CUDA graph and replayed, so a step costs one graph
@@ -255,7 +261,7 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
     replay writes into the same output buffers every step, so the step returns copies. A model on
     the CPU raises :class:`ModelError`, and so does the first step of a model whose step cannot be
     captured (one that copies between host and device inside). The step is traced inside
-    :func:`mdgs.structure.horn_rotations`, so its Kabsch fits use Horn's quaternion method instead of
+    :func:`mdgs.structure.rotation_fit` ("horn"), so its Kabsch fits use Horn's quaternion method instead of
     the SVD, whose error check reads a result on the host: with the SVD the MDGS step failed to
     capture on an H100 (``docs/results.md``, "On a GPU"); with Horn's method it captures as one graph
     (0.47 ms a single-trajectory step on an H100, one replay, tests/test_cuda.py). A graph break inside
@@ -290,7 +296,7 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
         def compiled(state: State, ctrl: torch.Tensor) -> State:
             torch.compiler.cudagraph_mark_step_begin()  # each call is a new replay: earlier outputs may be reused
             try:
-                with horn_rotations():  # Kabsch without the SVD's host-side error check
+                with rotation_fit("horn"):  # Kabsch without the SVD's host-side error check
                     out = graphed(state, ctrl)
             except RuntimeError as e:
                 if "graph capture" not in str(e):
@@ -307,8 +313,8 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
         # the first step of each binding and batch shape runs eagerly: it fills the scene's caches
         # (graph propagators, joint groups), which compiled steps then read as constants of one graph
         # instead of building them in graph breaks
-        key = (model._binds, tuple(state.x.shape), state.x.dtype, str(state.x.device),
-               tuple(sorted(state.extra)))
+        key = (model._binds, state.x.shape, state.x.dtype, state.x.device,
+               tuple(sorted(state.extra)) if state.extra else ())
         if key not in warm:
             warm.add(key)
             return eager(state, ctrl)
@@ -359,14 +365,31 @@ def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor):
     folder = Path(model._aot_dir.name)
     path = str(folder / f"step-{len(list(folder.iterdir()))}.pt2")  # one package per scene and batch shape
     args = (state.x, state.v, ctrl, *(state.extra[k] for k in names))
+    # folded_weights + use_runtime_constant_folding: products of weights alone (MDGS's Eqs. (5)-(6)) are
+    # computed once when the package loads. A single trajectory's step fits its rotations by Jacobi
+    # (mdgs.structure.rotation_jacobi): one fused loop instead of the SVD's library call and the copies
+    # around it, 0.29 -> 0.28 ms for MDGS on the Cubli, at 2.5x the compile time (16 -> 40 s); a batch
+    # shares the SVD's call, so batched packages keep it. max_fusion_size lets the fit's ~300 elementwise
+    # operations fuse into one loop instead of several that pass ~280 buffers between them.
+    options = {"aot_inductor.use_runtime_constant_folding": True, "max_fusion_size": 4096}
+    fit = "jacobi" if state.x.shape[0] == 1 else "svd"
     try:
-        with torch.no_grad():
+        with torch.no_grad(), folded_weights(), rotation_fit(fit):
             program = torch.export.export(Step(), args, strict=False)
-            torch._inductor.aoti_compile_and_package(program, package_path=path)
+            torch._inductor.aoti_compile_and_package(program, package_path=path, inductor_configs=options)
     except Exception as e:  # noqa: BLE001 - torch.export's and inductor's many failure types
         raise ModelError(f"the step of {model.name!r} does not compile ahead of time ({type(e).__name__}: "
                          f"{str(e).splitlines()[0][:120]}); use compile mode 'inductor'") from e
-    return torch._inductor.aoti_load_package(path)
+    package = torch._inductor.aoti_load_package(path)
+    # the package's own __call__ parses its input and output specs at every call (8 of the 10 us it
+    # costs here); the step's inputs and outputs are flat tuples of tensors, so the loader is called
+    # with the flat list directly and its flat list of outputs is the step's tuple
+    run = package.loader.boxed_run
+    first, direct = package(*args), run(list(args))
+    if not (isinstance(first, tuple) and len(first) == len(direct)
+            and all(torch.equal(a, b) for a, b in zip(first, direct, strict=True))):
+        return package
+    return lambda *a: run(list(a))
 
 
 def one_step_error(model: Simulator, d: SplitData, dev, batch_size: int = 64, max_pairs: int = 0) -> float:

@@ -53,7 +53,7 @@ from mdgs.joints import JointSet, joints_of, project_joints
 from mdgs.losses import constraint_loss, huber_loss, mse_loss, pair_mse, speeds_of
 from mdgs.models.base import Batch, ModelError, Simulator, State, batch_of
 from mdgs.models.integrators import INTEGRATORS
-from mdgs.models.layers import GCN
+from mdgs.models.layers import GCN, weights_folded
 from mdgs.rigid import advance, perturb, project, twist
 from mdgs.structure import align_with_pose
 from mdgs.tree import check_joint_velocities, tree_step, warn_unprojected
@@ -509,6 +509,7 @@ class MDGS(Simulator):
         self._drives = DriveSet()
         self._gravity: torch.Tensor | None = None
         self.future = int(max(config.pushforward, config.unroll))
+        self._fold_cache: tuple | None = None  # (weight versions, products) of _folded_weights
 
     # --- construction ------------------------------------------------------------------------
     @classmethod
@@ -761,9 +762,12 @@ class MDGS(Simulator):
             a_c = dense_contacts(x.detach(), scene.obj, scene.contact_radius,
                                  candidates=scene.contact_candidates(dev))
             union = Propagator(dense=gcn_norm_adjacency(a_c | scene.object_graph.adjacency(dev), dt))
-            z_glob = self.global_gather(union, z)  # Eq. (5)
-            f_c = c.force_scale * self.force_contact(Propagator(dense=gcn_norm_adjacency(a_c, dt)),
-                                                     torch.cat([z, z_glob], -1))  # Eq. (6)
+            con_prop = Propagator(dense=gcn_norm_adjacency(a_c, dt))
+            if weights_folded() and not c.self_weight:
+                f_c = c.force_scale * self._contact_forces_folded(union, con_prop, z)  # Eqs. (5)-(6)
+            else:
+                z_glob = self.global_gather(union, z)  # Eq. (5)
+                f_c = c.force_scale * self.force_contact(con_prop, torch.cat([z, z_glob], -1))  # Eq. (6)
             f_c = f_c * a_c.any(-1, keepdim=True)  # zero off contact edges
             ce, mask = None, a_c  # the edge list only if read (Prediction.contact_edges)
         elif self.contact and scene.has_contact:
@@ -805,6 +809,40 @@ class MDGS(Simulator):
         x_next = torch.where(m, x_next, x)
         v_next = torch.where(m, v_next, torch.zeros_like(v_next))
         return Prediction(x_next, v_next, f, f_nc, f_c, ce, mask, priors)
+
+    def _contact_forces_folded(self, union: Propagator, con_prop: Propagator, z: torch.Tensor) -> torch.Tensor:
+        """``g^F-([z || g^Z-(z)])`` of Eqs. (5)-(6) [B, N, 3] with g^Z-'s last layer folded into g^F-'s first.
+
+        No activation separates them: g^Z-'s output is ``Z- = A_u h W3^T + b3`` (``h`` [B, N, hidden] its last
+        hidden features, ``A_u`` the union graph) and g^F-'s first layer maps ``[z || Z-] W1^T = z W1z^T +
+        Z- W1g^T``, so that layer is ``A_c (z W1z^T + A_u h (W1g W3)^T + (W1g b3)^T) + b1``: one
+        ``[hidden, hidden]`` product per step fewer (:meth:`_folded_weights`). The same function as the
+        unfolded path up to float round-off (tests/test_model.py); used inside
+        :func:`~mdgs.models.layers.folded_weights` (the ahead-of-time compiled step).
+        """
+        gz, fc = self.global_gather, self.force_contact
+        w1z, wf, bf = self._folded_weights()
+        h = gz(union, z, last=len(gz.lins) - 1)  # g^Z-'s input to its last layer
+        h1 = con_prop(z @ w1z.T + union(h @ wf.T) + bf) + fc.lins[0].bias
+        if len(fc.lins) > 1:
+            h1 = torch.relu(h1)
+        return fc(con_prop, h1, first=1)
+
+    def _folded_weights(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(W1z, W1g W3, W1g b3)`` of :meth:`_contact_forces_folded`: [hidden, d_z], [hidden, hidden of g^Z-],
+        [hidden]. Traced, the products are part of the graph (AOTInductor folds them into constants);
+        eagerly they are cached until a weight changes (its version counter)."""
+        w3, b3 = self.global_gather.lins[-1].weight, self.global_gather.lins[-1].bias
+        w1 = self.force_contact.lins[0].weight  # [hidden, d_z + global_dim]
+        compiling = torch.compiler.is_compiling()
+        key = tuple((id(p), p._version) for p in (w3, b3, w1)) if not compiling else None
+        if key is not None and self._fold_cache is not None and self._fold_cache[0] == key:
+            return self._fold_cache[1]
+        w1g = w1[:, self.d_z:]
+        out = (w1[:, :self.d_z], w1g @ w3, w1g @ b3)
+        if key is not None:
+            self._fold_cache = (key, out)
+        return out
 
     # --- the Simulator contract ------------------------------------------------------------------
     def step(self, state: State, ctrl: torch.Tensor) -> State:
