@@ -9,7 +9,14 @@ import torch
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mdgs.structure import _rotation_svd, align_to_reference, kabsch, rotation_fit, rotation_horn, rotation_jacobi
+from mdgs.structure import (
+    _rotation_svd,
+    align_to_reference,
+    kabsch,
+    rotation_fit,
+    rotation_horn,
+    rotation_jacobi,
+)
 
 
 def _rotation(q):

@@ -29,7 +29,7 @@ import torch
 from mdgs.data.split import SplitData
 from mdgs.models import ModelError, Simulator, compile_step
 
-__all__ = ["step_cost", "compiled_cost"]
+__all__ = ["step_cost", "compiled_cost", "quiet_compiler"]
 
 
 @torch.no_grad()
@@ -92,7 +92,7 @@ def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batched: in
         try:
             t0 = time.perf_counter()
             compile_step(model, m)
-            with _quiet_compiler():
+            with quiet_compiler():
                 for b in sizes:  # compile each batch shape (two steps: the first of a binding runs eagerly)
                     step_cost(model, d, batch=b, frames=2, repeats=1)
             t_compile += time.perf_counter() - t0
@@ -130,7 +130,7 @@ def _refuse_recompiles(model: Simulator) -> None:
 
 
 @contextlib.contextmanager
-def _quiet_compiler():
+def quiet_compiler():
     """Silence torch's own deprecation warnings and inductor's notes while it compiles (one screenful per
     compiled shape, none about the model: e.g. that SVD has no C shim and runs through a fallback)."""
     log = logging.getLogger("torch._inductor")
