@@ -13,6 +13,7 @@ the predicted positions; the aligned output is ``R* p_i + t*``. Shapes follow th
 from __future__ import annotations
 
 import contextlib
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -140,7 +141,10 @@ def kabsch(ref: torch.Tensor, pred: torch.Tensor, seg: torch.Tensor, n_seg: int 
     # (branch-free: no host sync, one graph under torch.compile)
     bad = ~torch.isfinite(H).flatten(-2).all(-1)  # [B, S]
     H = torch.where(bad[..., None, None], torch.eye(3, dtype=H.dtype, device=H.device), H)
-    R = rotation_horn(H) if _FIT == "horn" else rotation_jacobi(H) if _FIT == "jacobi" else _rotation_svd(H)
+    fit = _FIT
+    if not torch.compiler.is_dynamo_compiling():  # dynamo would guard on the count, and trace anew each step
+        fit.calls += 1
+    R = rotation_horn(H) if fit.name == "horn" else rotation_jacobi(H) if fit.name == "jacobi" else _rotation_svd(H)
     t = cq - (R @ cp.unsqueeze(-1)).squeeze(-1)
     R = torch.where(bad[..., None, None], torch.nan, R)
     t = torch.where(bad[..., None], torch.nan, t)
@@ -160,20 +164,32 @@ def _rotation_svd(H: torch.Tensor) -> torch.Tensor:
 
 #: The fits :func:`rotation_fit` can choose for :func:`kabsch`.
 ROTATION_FITS = ("svd", "horn", "jacobi")
-_FIT = "svd"  # set by rotation_fit(); read by kabsch (a traced step bakes in its value)
+
+
+@dataclass
+class RotationFit:
+    """The fit :func:`kabsch` uses (``name``, one of :data:`ROTATION_FITS`) and how many fits it made with it
+    (``calls``: each call, or each call site while a step is exported; not counted while dynamo traces)."""
+
+    name: str
+    calls: int = 0
+
+
+_FIT = RotationFit("svd")  # set by rotation_fit(); read by kabsch (a traced step bakes in its name)
 
 
 @contextlib.contextmanager
 def rotation_fit(name: str):
     """Within this block :func:`kabsch` fits rotations by ``name``: "svd" (the default), "horn"
     (:func:`rotation_horn`, matrix products only: what a step captured as a CUDA graph must use) or
-    "jacobi" (:func:`rotation_jacobi`, elementwise only: one fused kernel in a compiled step)."""
+    "jacobi" (:func:`rotation_jacobi`, elementwise only: one fused kernel in a compiled step). Yields the
+    block's :class:`RotationFit`, whose ``calls`` count the fits made inside it."""
     global _FIT
     if name not in ROTATION_FITS:
         raise ValueError(f"rotation fit {name!r} is not one of {', '.join(ROTATION_FITS)}")
-    before, _FIT = _FIT, name
+    before, _FIT = _FIT, RotationFit(name)
     try:
-        yield
+        yield _FIT
     finally:
         _FIT = before
 

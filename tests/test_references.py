@@ -137,6 +137,36 @@ def test_ahead_of_time_compiled_mdgs_rolls_out_as_the_eager_step_and_reuses_its_
         compile_step(model, "jit")
 
 
+def test_only_a_single_trajectorys_step_with_one_rotation_fit_is_exported_with_jacobi_rotations(test_split, monkeypatch):
+    """Ahead of time, MDGS's step for one trajectory (one Kabsch fit) is exported with Jacobi rotations (no SVD
+    left in the program); for two trajectories, and the rigid tree's step (two fits a frame, each of which would
+    cost 25-40 s of compiling), with the SVD. Compiling itself is stood in for (it takes a minute)."""
+    from mdgs.models import compile_step
+
+    programs = []
+
+    def stop(program, **kw):
+        programs.append({str(n.target) for n in program.graph.nodes})
+        raise RuntimeError("stood in for")
+
+    monkeypatch.setattr(torch._inductor, "aoti_compile_and_package", stop)
+    md, ct = MODELS["mdgs"], MODELS["constant-twist"]
+    cases = [(md.from_data(test_split), 1, True), (md.from_data(test_split), 2, False),
+             (ct.from_data(test_split, ct.Config(dynamics=True, joints=True)), 1, False)]
+    for model, batch, jacobi in cases:
+        compile_step(model, "aot")
+        model.bind(test_split)
+        traj = np.zeros(batch, dtype=int)
+        st = model.initial_state(test_split, traj, model.history)
+        ctrl = torch.from_numpy(test_split.ctrl[traj, model.history])
+        model.step(st, ctrl)  # the first step of a binding runs eagerly
+        with pytest.raises(ModelError, match="does not compile ahead of time"):
+            model.step(st, ctrl)
+        ops = programs[-1]
+        assert (not any("svd" in op for op in ops)) == jacobi
+        assert any("copysign" in op for op in ops) == jacobi
+
+
 def test_cuda_graphs_are_refused_on_the_cpu_and_the_cost_falls_back_to_inductor(test_split):
     """``compile_step(model, "cudagraphs")`` needs a CUDA device: on the CPU one ModelError naming the
     device and the other modes; ``compiled_cost`` then times the next mode that works and says why."""
@@ -169,7 +199,7 @@ def test_the_cuda_graph_step_is_traced_with_horns_rotation_returns_copies_and_tu
         seen.update(kw)
 
         def replay(state, ctrl):
-            seen["horn"] = mdgs.structure._FIT == "horn"
+            seen["horn"] = mdgs.structure._FIT.name == "horn"
             if capture == "fails":
                 raise RuntimeError("Cannot copy between CPU and CUDA tensors during CUDA graph capture unless ...")
             seen["out"] = fn(state, ctrl)
@@ -192,7 +222,7 @@ def test_the_cuda_graph_step_is_traced_with_horns_rotation_returns_copies_and_tu
         out = ref.step(st, ctrl)
         assert out.x is not seen["out"].x and out.v is not seen["out"].v  # copies, not the replay's buffers
         torch.testing.assert_close(out.x, first.x, rtol=0, atol=0)
-    assert seen["horn"] is True and mdgs.structure._FIT == "svd"  # Horn inside the call only
+    assert seen["horn"] is True and mdgs.structure._FIT.name == "svd"  # Horn inside the call only
 
 
 def test_compiled_cost_falls_back_mode_by_mode_and_says_why(test_split, monkeypatch):

@@ -227,6 +227,10 @@ class Simulator(nn.Module):
 #: What :func:`compile_step` can compile a step with ("cudagraphs": CUDA devices only).
 COMPILE_MODES = ("inductor", "aot", "cudagraphs")
 
+#: Kabsch fits a single trajectory's ahead-of-time step may make by Jacobi rotations (each costs 25-40 s of
+#: compiling and saves ~15 us a step, :func:`_aot_step`); a step with more keeps the SVD.
+JACOBI_MAX_FITS = 1
+
 
 @torch.no_grad()
 def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
@@ -250,8 +254,9 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
     compiles its own, and weights changed after compiling are not seen (compile after training). A step that does not export
     raises :class:`ModelError` naming ``inductor``. The package computes what the eager step computes, in
     another order: products of weights alone are folded into constants when it loads
-    (:func:`~mdgs.models.layers.folded_weights`), and a single trajectory's Kabsch fits use Jacobi
-    rotations instead of the SVD (:func:`mdgs.structure.rotation_fit`), so rollouts differ from the eager
+    (:func:`~mdgs.models.layers.folded_weights`), and a single trajectory's step with one Kabsch fit
+    (:data:`JACOBI_MAX_FITS`) uses Jacobi rotations instead of the SVD (:func:`mdgs.structure.rotation_fit`),
+    so rollouts differ from the eager
     ones by float32 round-off and what a rollout makes of it (MDGS on the tiny Cubli, every test
     trajectory: 4e-6 m at most, benchmarks/bench_models.py ``--compile aot``).
 
@@ -366,16 +371,22 @@ def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor):
     path = str(folder / f"step-{len(list(folder.iterdir()))}.pt2")  # one package per scene and batch shape
     args = (state.x, state.v, ctrl, *(state.extra[k] for k in names))
     # folded_weights + use_runtime_constant_folding: products of weights alone (MDGS's Eqs. (5)-(6)) are
-    # computed once when the package loads. A single trajectory's step fits its rotations by Jacobi
-    # (mdgs.structure.rotation_jacobi): one fused loop instead of the SVD's library call and the copies
-    # around it, 0.29 -> 0.28 ms for MDGS on the Cubli, at 2.5x the compile time (16 -> 40 s); a batch
-    # shares the SVD's call, so batched packages keep it. max_fusion_size lets the fit's ~300 elementwise
+    # computed once when the package loads. A single trajectory's step with one Kabsch fit (MDGS's) fits it
+    # by Jacobi (mdgs.structure.rotation_jacobi): one fused loop instead of the SVD's library call and the
+    # copies around it, 0.29 -> 0.28 ms for MDGS on the Cubli, at 2.5x the compile time (16 -> 40 s); each
+    # further fit would add 25-40 s of compiling (the rigid tree fits once per substep), and a batch shares
+    # the SVD's call, so those packages keep the SVD. max_fusion_size lets the fit's ~300 elementwise
     # operations fuse into one loop instead of several that pass ~280 buffers between them.
     options = {"aot_inductor.use_runtime_constant_folding": True, "max_fusion_size": 4096}
-    fit = "jacobi" if state.x.shape[0] == 1 else "svd"
     try:
-        with torch.no_grad(), folded_weights(), rotation_fit(fit):
-            program = torch.export.export(Step(), args, strict=False)
+        with torch.no_grad(), folded_weights():
+            program = None
+            if state.x.shape[0] == 1:
+                with rotation_fit("jacobi") as fits:
+                    program = torch.export.export(Step(), args, strict=False)
+                program = program if fits.calls <= JACOBI_MAX_FITS else None
+            if program is None:
+                program = torch.export.export(Step(), args, strict=False)
             torch._inductor.aoti_compile_and_package(program, package_path=path, inductor_configs=options)
     except Exception as e:  # noqa: BLE001 - torch.export's and inductor's many failure types
         raise ModelError(f"the step of {model.name!r} does not compile ahead of time ({type(e).__name__}: "
