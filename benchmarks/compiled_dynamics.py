@@ -8,7 +8,7 @@ forward dynamics, trapezoidal, projected onto the joints as every study row of i
 the tiny Cubli's fast flywheel leaves its hinge within ten frames, and a diverging rollout is not a step
 worth timing) and MDGS on that prior (``actuation = "dynamics"``, its joints projected by default), ms per frame for
 one trajectory and per trajectory-frame at ``--batch`` trajectories, eager and compiled with inductor
-(:func:`mdgs.evaluate.cost.compiled_cost`; compile seconds outside the timings). Compiled, the forward
+(:func:`mdgs.evaluate.cost.compiled_cost`; compile seconds outside the timings), or ahead of time (``--modes none aot``). Compiled, the forward
 dynamics solves with a slot for every contact candidate and runs every pass
 (:func:`mdgs.actuation.coupled_motor_accelerations`), so that its shapes do not follow the state: cheaper
 for one trajectory (no graph breaks), dearer in a batch (larger systems than the eager step's). ``--substeps N`` (N > 1) measures the tree and MDGS
@@ -37,8 +37,8 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=16)
     ap.add_argument("--substeps", type=int, default=1, help="N > 1: N substeps with push-out")
     ap.add_argument("--device", default="cpu", help="cpu, or cuda")
-    ap.add_argument("--modes", nargs="*", default=["none", "inductor"], choices=("none", "inductor", "cudagraphs"),
-                    help="how the step runs: none (eager), inductor (torch.compile), cudagraphs (CUDA only)")
+    ap.add_argument("--modes", nargs="*", default=["none", "inductor"], choices=("none", "inductor", "aot", "cudagraphs"),
+                    help="how the step runs: none (eager), inductor (torch.compile), aot (AOTInductor), cudagraphs (CUDA only)")
     ap.add_argument("--models", nargs="*", default=["tree", "mdgs"], choices=("tree", "mdgs"))
     args = ap.parse_args()
     torch.set_num_threads(1)
@@ -60,7 +60,8 @@ def main() -> None:
             print(f"{label:36s}{r['compiled']:>10s}{r['single']['ms_per_frame']:>10.3f}"
                   f"{r['batched']['ms_per_trajectory_frame']:>12.3f}{r['compile_seconds']:>11.0f}"
                   + (f"  ({r['note']})" if r["note"] else ""), flush=True)
-    print("step: none = eager, inductor = torch.compile, cudagraphs = replayed as a CUDA graph; ms/f b1: ms per frame, one trajectory; ms/tf bN: ms per "
+    print("step: none = eager, inductor = torch.compile, aot = AOTInductor, cudagraphs = replayed as a CUDA graph; ms/f b1: ms per frame, one "
+          "trajectory; ms/tf bN: ms per "
           "trajectory-frame at batch N")
 
 
