@@ -258,7 +258,7 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
     (:data:`JACOBI_MAX_FITS`) uses Jacobi rotations instead of the SVD (:func:`mdgs.structure.rotation_fit`),
     so rollouts differ from the eager
     ones by float32 round-off and what a rollout makes of it (MDGS on the tiny Cubli, every test
-    trajectory: 4e-6 m at most, benchmarks/bench_models.py ``--compile aot``).
+    trajectory: 0-4.3e-6 m in three runs, benchmarks/bench_models.py ``--compile aot``).
 
     ``mode="cudagraphs"`` (CUDA only; ``torch.compile`` with ``mode="reduce-overhead"``): inductor's
     kernels recorded once per batch shape into a CUDA graph and replayed, so a step costs one graph
@@ -374,7 +374,7 @@ def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor):
     # computed once when the package loads. A single trajectory's step with one Kabsch fit (MDGS's) fits it
     # by Jacobi (mdgs.structure.rotation_jacobi): one fused loop instead of the SVD's library call and the
     # copies around it, 0.29 -> 0.28 ms for MDGS on the Cubli, at 2.5x the compile time (16 -> 40 s); each
-    # further fit would add 25-40 s of compiling (the rigid tree fits once per substep), and a batch shares
+    # further fit would add 25-40 s of compiling (the rigid tree fits 2-3 times per substep), and a batch shares
     # the SVD's call, so those packages keep the SVD. max_fusion_size lets the fit's ~300 elementwise
     # operations fuse into one loop instead of several that pass ~280 buffers between them.
     options = {"aot_inductor.use_runtime_constant_folding": True, "max_fusion_size": 4096}

@@ -11,7 +11,7 @@ from mdgs.graphs import Propagator
 
 __all__ = ["GCN", "folded_weights", "weights_folded"]
 
-_FOLDED = False  # set by folded_weights(); read by weights_folded() while a step is traced
+_FOLDED = False  # set by folded_weights(); read by weights_folded()
 
 
 @contextlib.contextmanager
