@@ -9,7 +9,9 @@ DATA_FOLDER holds ``hinge_slide_free/SPLIT.h5`` (``mdgs generate --mjcf studies/
 controls set to zero, stepped FRAMES frames (default 220) by the "rigid tree + joints, trapezoidal, push-out, 4
 substeps" reference (``studies/mdgs-substeps.toml``'s) with ``joint_velocities`` "parent" and "momentum": the cart's
 and pole's kinetic plus potential energy (J, the MJCF's masses and inertias, each body's pose and twist fitted to its
-nodes) every 20 frames, and how far the pole's angle ends from where MuJoCo at the data's timestep puts it.
+nodes) every 20 frames, and how far the pole's angle ends from where MuJoCo at the data's timestep puts it. Then,
+for each rule on trajectory 0, the kinetic energy that the projections themselves change, summed over every substep
+of the FRAMES frames (the rest of the change is the forward dynamics' and the integrator's).
 """
 import sys
 from pathlib import Path
@@ -17,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+import mdgs.tree
 from mdgs.actuation import drives_of
 from mdgs.data.split import load_split
 from mdgs.graphs import SceneGraph
@@ -39,18 +42,26 @@ pole = next(s for s in moving if names.get(s) == "pole")
 print(f"objects: {names}; summed: {[names[s] for s in keep]}")
 
 
-def energy_and_angle(x, v):
-    R, t = kabsch(sc.ref_shape.double(), x, sc.obj, sc.n_obj)
-    tw = twist(x, v, sc.obj, sc.n_obj, sc.mass.double())
+def kinetic(x, v) -> float:
+    """The cart's and pole's kinetic energy (J) at ``x, v`` [1, N, 3]."""
+    R, t = kabsch(sc.ref_shape.double(), x.double(), sc.obj, sc.n_obj)
+    tw = twist(x.double(), v.double(), sc.obj, sc.n_obj, sc.mass.double())
     e = 0.0
     for s in keep:
         inertia = R[0, s] @ torch.as_tensor(dr.inertia[s]) @ R[0, s].T
         com = R[0, s] @ torch.as_tensor(dr.com[s]) + t[0, s]
         w = tw.omega[0, s]
         vcom = tw.vc[0, s] + torch.linalg.cross(w, com - tw.c[0, s])
-        e += 0.5 * dr.mass[s] * float(vcom @ vcom) + 0.5 * float(w @ inertia @ w) + dr.mass[s] * g * float(com[2])
+        e += 0.5 * dr.mass[s] * float(vcom @ vcom) + 0.5 * float(w @ inertia @ w)
+    return e
+
+
+def energy_and_angle(x, v):
+    """The cart's and pole's kinetic plus potential energy (J) and the pole's angle from upright (rad) at ``x, v``."""
+    R, t = kabsch(sc.ref_shape.double(), x, sc.obj, sc.n_obj)
+    potential = sum(dr.mass[s] * g * float(R[0, s, 2] @ torch.as_tensor(dr.com[s]) + t[0, s, 2]) for s in keep)
     axis = R[0, pole] @ torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)  # the pole's long axis in the world
-    return e, float(torch.atan2(axis[0], axis[2]))
+    return kinetic(x, v) + potential, float(torch.atan2(axis[0], axis[2]))
 
 
 ct, mj = MODELS["constant-twist"], MODELS["mujoco"]
@@ -74,3 +85,35 @@ for tr in range(min(4, d.x.shape[0])):
         ends[label] = energy_and_angle(s.x.double(), s.v.double())[1]
         off = "" if label.startswith("mujoco") else f"; pole angle {np.degrees(ends[label] - ends['mujoco dt x1']):+8.2f} deg off MuJoCo's"
         print(f"trajectory {tr} {label:15s} energy (J) " + " ".join(f"{e:8.3f}" for e in es) + off, flush=True)
+
+# what the projections themselves do to the kinetic energy: the tree step's calls wrapped
+changes: list[float] = []
+joints0, velocities0 = mdgs.tree.project_joints, mdgs.tree.project_velocities
+
+
+def joints_logged(x, v, *a):
+    xj, vj = joints0(x, v, *a)
+    changes.append(kinetic(xj, vj) - kinetic(x, v))
+    return xj, vj
+
+
+def velocities_logged(xj, v, *a, x_from=None, dt=None):
+    out = velocities0(xj, v, *a, x_from=x_from, dt=dt)
+    changes[-1] = kinetic(xj, out) - kinetic(x_from, v)  # replaces the parent-first change just logged
+    return out
+
+
+mdgs.tree.project_joints, mdgs.tree.project_velocities = joints_logged, velocities_logged
+x0, v0 = torch.as_tensor(d.x[0:1, 0]).double(), torch.as_tensor(d.v[0:1, 0]).double()
+for rule in ("parent", "momentum"):
+    changes.clear()
+    model = ct.from_data(d, ct.Config(joint_velocities=rule, **TREE))
+    model.bind(d)
+    s = model.initial_state(d, np.array([0]), model.history)
+    s = State(x0.to(s.x.dtype), v0.to(s.x.dtype), s.extra)
+    u = torch.zeros(1, d.ctrl.shape[-1], dtype=s.x.dtype)
+    for _ in range(frames):
+        s = model.step(s, u)
+    c = np.array(changes)
+    print(f"trajectory 0 tree, {rule:8s}: the projections change the kinetic energy by {c.sum():+.3e} J in all over "
+          f"{len(c)} substeps (largest gain {c.max():+.1e}, largest loss {c.min():+.1e} J)", flush=True)
