@@ -227,8 +227,8 @@ class Simulator(nn.Module):
 #: What :func:`compile_step` can compile a step with ("cudagraphs": CUDA devices only).
 COMPILE_MODES = ("inductor", "aot", "cudagraphs")
 
-#: Kabsch fits a single trajectory's ahead-of-time step may make by Jacobi rotations (each costs 25-40 s of
-#: compiling and saves ~15 us a step, :func:`_aot_step`); a step with more keeps the SVD.
+#: Kabsch fits a single trajectory's ahead-of-time step may make by Jacobi rotations (each lengthens the compile
+#: by tens of seconds for a few percent of a step, :func:`_aot_step`); a step with more keeps the SVD.
 JACOBI_MAX_FITS = 1
 
 
@@ -373,9 +373,9 @@ def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor):
     # folded_weights + use_runtime_constant_folding: products of weights alone (MDGS's Eqs. (5)-(6)) are
     # computed once when the package loads. A single trajectory's step with one Kabsch fit (MDGS's) fits it
     # by Jacobi (mdgs.structure.rotation_jacobi): one fused loop instead of the SVD's library call and the
-    # copies around it, 0.29 -> 0.28 ms for MDGS on the Cubli, at 2.5x the compile time (16 -> 40 s); each
-    # further fit would add 25-40 s of compiling (the rigid tree fits 2-3 times per substep), and a batch shares
-    # the SVD's call, so those packages keep the SVD. max_fusion_size lets the fit's ~300 elementwise
+    # copies around it (docs/results.md, "Speed, side by side"), at a longer compile; each further fit would
+    # lengthen it as much (the rigid tree fits several times a frame), and a batch shares the SVD's call, so
+    # those packages keep the SVD. max_fusion_size lets the fit's ~300 elementwise
     # operations fuse into one loop instead of several that pass ~280 buffers between them.
     options = {"aot_inductor.use_runtime_constant_folding": True, "max_fusion_size": 4096}
     try:
@@ -392,8 +392,8 @@ def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor):
         raise ModelError(f"the step of {model.name!r} does not compile ahead of time ({type(e).__name__}: "
                          f"{str(e).splitlines()[0][:120]}); use compile mode 'inductor'") from e
     package = torch._inductor.aoti_load_package(path)
-    # the package's own __call__ parses its input and output specs at every call (8 of the 10 us it
-    # costs here); the step's inputs and outputs are flat tuples of tensors, so the loader is called
+    # the package's own __call__ parses its input and output specs at every call (most of what a call
+    # costs); the step's inputs and outputs are flat tuples of tensors, so the loader is called
     # with the flat list directly and its flat list of outputs is the step's tuple
     run = package.loader.boxed_run
     first, direct = package(*args), run(list(args))
