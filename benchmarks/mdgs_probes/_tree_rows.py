@@ -23,9 +23,9 @@ def tree_row(d, **settings) -> tuple[str, object]:
             f"diverged {rep['diverged']}/{d.x.shape[0]}"), r
 
 
-def energy_of(d):
+def energy_of(d, keep=None):
     """``energy(x, v)`` for split ``d``'s scene: of the first trajectory of node positions and velocities ``x, v``
-    [B, N, 3] (float64), the sum over moving bodies of ``M |v_c|^2 / 2 + w . I w / 2 + M g z_c`` (J), with the
+    [B, N, 3] (float64), the sum over the moving bodies (the objects ``keep``, when given) of ``M |v_c|^2 / 2 + w . I w / 2 + M g z_c`` (J), with the
     MJCF's masses, inertias and gravity and each body's pose and twist fitted to its nodes; conserved in free
     flight, so what a rollout gains is its integrator's error."""
     sc = SceneGraph.from_static(d.static, has_contact=d.has_contact)
@@ -36,7 +36,7 @@ def energy_of(d):
         R, t = kabsch(sc.ref_shape.double(), x, sc.obj, sc.n_obj)
         tw = twist(x, v, sc.obj, sc.n_obj, sc.mass.double())
         e = 0.0
-        for s in np.flatnonzero(~np.asarray(dr.fixed, bool)):
+        for s in np.flatnonzero(~np.asarray(dr.fixed, bool)) if keep is None else keep:
             inertia = R[0, s] @ torch.as_tensor(dr.inertia[s]) @ R[0, s].T
             com = R[0, s] @ torch.as_tensor(dr.com[s]) + t[0, s]
             w = tw.omega[0, s]
