@@ -62,9 +62,9 @@ def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: Driv
     the generalised velocities ``u`` (each root's twist, each jointed child's rate across its joint) change by the
     rigid part of the accelerations ``h a`` read as joint rates, and each root moves rigidly by its twist, each child
     with its parent and about (along) its joint by its rate, so that the joints hold by construction and no projection
-    follows. With ``trapezoidal`` this is velocity Verlet, ``q' = q + h u + h^2 a(q, u) / 2``, ``u' = u + h (a(q, u)
-    + a(q', u + h a)) / 2`` (the end's accelerations taken at the predicted velocities and reused as the next substep's
-    start: ``substeps + 1`` solves a frame), which keeps a swinging pendulum's energy where the trapezoidal step of
+    follows. With ``trapezoidal`` this is velocity Verlet, ``q' = q + h u + h^2 a(q, u) / 2`` and
+    ``u' = u + h (a(q, u) + a(q', u + h a)) / 2`` (the end's accelerations taken at the predicted velocities and
+    reused as the next substep's start: ``substeps + 1`` solves a frame), which keeps a swinging pendulum's energy where the trapezoidal step of
     the bodies' twists gains it; without, semi-implicit Euler in joint coordinates, MuJoCo's own integrator
     (docs/mdgs-experiments.md, "Stepping in the joints' coordinates"). Joints that :mod:`mdgs.joints` leaves alone
     (``joints.skipped``) and free joints make their child a root; ``pushed_out`` moves still project the joints after
@@ -251,3 +251,4 @@ def _coordinates_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, driv
         if k < substeps - 1:
             du = du_end
     return xd.to(x.dtype), vd.to(v.dtype)
+

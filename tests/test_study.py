@@ -845,6 +845,26 @@ def test_rigid_tree_momentum_adds_the_last_rigid_tree_row_projected_by_impulses(
         md.Config(actuation="dynamics", prior_substeps=4, joints=False, joint_velocities="momentum")
 
 
+def test_rigid_tree_coordinates_adds_the_last_rigid_tree_row_stepped_in_joint_coordinates(tmp_path):
+    """``[references] rigid_tree_coordinates = true`` adds, per scene, the last rigid-tree row (not the momentum one)
+    stepped in its joint coordinates (``ConstantTwistConfig.joint_velocities = "coordinates"``), labelled as the
+    reference names itself; it needs ``rigid_tree`` and ``joints``."""
+    from mdgs.evaluate import reference_label
+
+    base = GOOD + ("[references]\njoints = true\nrigid_tree = true\nrigid_tree_trapezoidal = true\n"
+                   "rigid_tree_push_out = true\nrigid_tree_substeps = [4]\nrigid_tree_momentum = true\n")
+    study = load_study(_write(tmp_path, base))
+    more = load_study(_write(tmp_path, base + "rigid_tree_coordinates = true\n"))
+    new = [c for c in cells_of(more) if c.key(more) not in {k.key(study) for k in cells_of(study)}]
+    assert {c.label for c in new} == {"rigid tree + joints, trapezoidal, push-out, 4 substeps, joint coordinates"}
+    assert len(new) == len(study.scenes)
+    ct = MODELS["constant-twist"]
+    for c in new:
+        assert reference_label(ct(ct.Config(**dict(c.settings)))) == c.label
+    with pytest.raises(StudyError, match="set rigid_tree = true and joints = true"):
+        load_study(_write(tmp_path, GOOD + "[references]\nrigid_tree = true\nrigid_tree_coordinates = true\n"))
+
+
 def test_rigid_tree_gyroscopic_adds_the_last_rigid_tree_row_with_each_rule_of_the_gyroscopic_terms(tmp_path):
     """``[references] rigid_tree_gyroscopic = ["implicit", "midpoint"]`` adds, per scene, the last rigid-tree row with
     each rule (``ConstantTwistConfig.gyroscopic``), labelled as the reference names itself; the other cells keep

@@ -204,7 +204,9 @@ class MDGSConfig:
         halfway, linearised, so that a rotor spun fast on a light carrier does not gain energy.
     joint_velocities : with ``prior_substeps`` above 1 and ``joints``, how the prior's rigid tree projects its twists
         onto the joints after each substep (:data:`mdgs.tree.JOINT_VELOCITIES`): "parent" (each child takes its
-        parent's twist across the joint) or "momentum" (the least kinetic-energy change, impulses at the joints).
+        parent's twist across the joint), "momentum" (the least kinetic-energy change, impulses at the joints) or
+        "coordinates" (the tree stepped in its joint coordinates, nothing projected; velocity Verlet with
+        ``trapezoidal``).
     scales : where the scales left at 1.0 (``dx_scale``, ``dv_scale`` and, with ``object_scales``, the
         per-object ones) come from: "increments" (the std of the frame's increments under the integrator,
         as without priors g predicts them) or "residual" (what g must add to its zero output, that is to
@@ -332,7 +334,7 @@ class MDGSConfig:
         gyroscopic_weight(self.gyroscopic)  # a rule it does not know raises, naming the rules
         check_joint_velocities(self.joint_velocities)
         if self.joint_velocities != "parent" and not (self.prior_substeps > 1 and self.joints):
-            raise ValueError("joint_velocities sets how the prior's rigid tree projects its twists onto the joints; "
+            raise ValueError("joint_velocities sets how the prior's rigid tree keeps its joints; "
                              "set actuation = \"dynamics\", prior_substeps above 1 and joints = true with it")
         if self.gyroscopic != "explicit" and self.actuation != "dynamics":
             raise ValueError("gyroscopic sets how the rigid tree of the \"dynamics\" prior steps; set actuation = "

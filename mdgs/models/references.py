@@ -80,7 +80,9 @@ class ConstantTwistConfig:
         terms (:data:`mdgs.actuation.GYROSCOPIC`); the label gains ", implicit gyroscopic" or ", midpoint gyroscopic".
     joint_velocities : with ``dynamics`` and ``joints``, "parent" (each child takes its parent's twist across the
         joint) or "momentum" (the least kinetic-energy change, equal and opposite impulses at the joints:
-        :func:`mdgs.actuation.project_velocities`); the label gains ", momentum projection".
+        :func:`mdgs.actuation.project_velocities`); the label gains ", momentum projection". Or "coordinates":
+        the tree stepped in its joint coordinates, nothing projected (:func:`mdgs.tree.tree_step`; with
+        ``trapezoidal`` velocity Verlet, else semi-implicit Euler); the label gains ", joint coordinates".
     """
 
     motors: bool = False
@@ -113,7 +115,7 @@ class ConstantTwistConfig:
             raise ValueError("gyroscopic sets how the rigid tree's forward dynamics steps; set dynamics = true with it")
         check_joint_velocities(self.joint_velocities)
         if self.joint_velocities != "parent" and not (self.dynamics and self.joints):
-            raise ValueError("joint_velocities sets how the rigid tree's twists are projected onto its joints; "
+            raise ValueError("joint_velocities sets how the rigid tree keeps its joints; "
                              "set dynamics = true and joints = true with it")
 
 

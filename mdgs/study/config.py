@@ -51,6 +51,8 @@ A study file has these tables (every key optional unless marked; defaults in the
                                         # or halfway ("midpoint"), for each (default []; ConstantTwistConfig.gyroscopic)
     rigid_tree_momentum = true          # also the last rigid tree row with its twists projected onto the joints by
                                         # impulses (default false; ConstantTwistConfig.joint_velocities = "momentum")
+    rigid_tree_coordinates = true       # also the last rigid tree row stepped in its joint coordinates (default
+                                        # false; ConstantTwistConfig.joint_velocities = "coordinates")
 
     [resolution]                        # MDGS error and cost against the element resolution
     model = "mdgs"                      # a registry name, or the label of a [[models]] row (its settings)
@@ -146,6 +148,7 @@ class StudyConfig:
     rigid_tree_substeps: tuple[int, ...] = ()
     rigid_tree_gyroscopic: tuple[str, ...] = ()
     rigid_tree_momentum: bool = False
+    rigid_tree_coordinates: bool = False
     resolution_model: str = "mdgs"
     resolution_label: str = "mdgs"
     resolution_settings: tuple[tuple[str, object], ...] = ()
@@ -308,7 +311,8 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
 
     rf = _take(doc, "references", dict, f, {})
     _unknown(rf, {"mujoco_dt_factors", "motors", "joints", "rigid_tree", "rigid_tree_trapezoidal",
-                  "rigid_tree_push_out", "rigid_tree_substeps", "rigid_tree_gyroscopic", "rigid_tree_momentum"},
+                  "rigid_tree_push_out", "rigid_tree_substeps", "rigid_tree_gyroscopic", "rigid_tree_momentum",
+                  "rigid_tree_coordinates"},
              f"{f} [references]")
     dts = _ints(rf, "mujoco_dt_factors", f"{f} [references]", (1, 2, 5, 10, 20), lo=1)
     motors = _take(rf, "motors", bool, f"{f} [references]", False)
@@ -329,6 +333,10 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
     if rigid_momentum and not (rigid_tree and joints):
         raise StudyError(f"{f} [references]: rigid_tree_momentum projects the rigid tree onto its joints; set "
                          "rigid_tree = true and joints = true with it")
+    rigid_coordinates = _take(rf, "rigid_tree_coordinates", bool, f"{f} [references]", False)
+    if rigid_coordinates and not (rigid_tree and joints):
+        raise StudyError(f"{f} [references]: rigid_tree_coordinates steps the rigid tree in its joint coordinates; "
+                         "set rigid_tree = true and joints = true with it")
 
     rs = _take(doc, "resolution", dict, f, {})
     where = f"{f} [resolution]"
@@ -349,6 +357,6 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
                        rigid_tree=rigid_tree, rigid_tree_trapezoidal=rigid_trap,
                        rigid_tree_push_out=rigid_push, rigid_tree_substeps=rigid_sub,
                        rigid_tree_gyroscopic=rigid_gyro,
-                       rigid_tree_momentum=rigid_momentum,
+                       rigid_tree_momentum=rigid_momentum, rigid_tree_coordinates=rigid_coordinates,
                        resolution_model=rmodel, resolution_label=rlabel, resolution_settings=rsettings,
                        resolution_refine=refine, resolution_seeds=_ints(rs, "seeds", where, (0,)))

@@ -166,6 +166,10 @@ def _reference_cells(study: StudyConfig, sc: SceneEntry, refine: int = 1) -> lis
         _, last, settings = specs[-1]
         specs.append(("constant-twist", f"{last}, momentum projection",
                       tuple(sorted(settings + (("joint_velocities", "momentum"),)))))
+    if study.rigid_tree_coordinates:  # the last rigid tree row (before the momentum one) stepped in joint coordinates
+        _, last, settings = next(s for s in reversed(specs) if ("joint_velocities", "momentum") not in s[2])
+        specs.append(("constant-twist", f"{last}, joint coordinates",
+                      tuple(sorted(settings + (("joint_velocities", "coordinates"),)))))
     specs += [("mujoco", f"mujoco dt x{k}", (("dt_factor", k),)) for k in study.mujoco_dt_factors]
     return [Cell("reference", sc, model, label + tail, settings, refine=refine) for model, label, settings in specs]
 
