@@ -343,10 +343,13 @@ def test_the_rigid_tree_is_a_reference_of_mdgs_evaluate_and_does_not_take_the_mo
     assert _parse_reference("constant-twist:dynamics+midpoint-gyroscopic")[1] == {"dynamics": True, "gyroscopic": "midpoint"}
     assert _parse_reference("constant-twist:dynamics+joints+momentum")[1] == {"dynamics": True, "joints": True,
                                                                             "joint_velocities": "momentum"}
+    assert _parse_reference("constant-twist:dynamics+joints+trapezoidal+coordinates")[1] == {
+        "dynamics": True, "joints": True, "trapezoidal": True, "joint_velocities": "coordinates"}
     for bad in ("constant-twist:joints+substeps=4", "constant-twist:dynamics+substeps=0", "constant-twist:dynamics+substeps=x",
                 "constant-twist:joints+implicit-gyroscopic", "constant-twist:dynamics+sideways-gyroscopic",
                 "constant-twist:dynamics+implicit-gyroscopic+midpoint-gyroscopic", "constant-twist:dynamics+momentum",
-                "constant-twist:joints+momentum"):
+                "constant-twist:joints+momentum", "constant-twist:dynamics+coordinates",
+                "constant-twist:dynamics+joints+momentum+coordinates"):
         with pytest.raises(typer.Exit):
             _parse_reference(bad)
     with pytest.raises(ValueError, match="substeps"):

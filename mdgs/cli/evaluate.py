@@ -36,18 +36,21 @@ def _parse_reference(text: str) -> tuple[str, dict]:
             fail(f"--reference {text}: write one of implicit-gyroscopic or midpoint-gyroscopic")
         if gyro and "dynamics" not in parts:
             fail(f"--reference {text}: {gyro[0]}-gyroscopic sets how the rigid tree steps; write dynamics+{gyro[0]}-gyroscopic")
-        momentum = "momentum" in parts
-        parts = [p for p in parts if p != "momentum"]
-        if momentum and not {"dynamics", "joints"} <= set(parts):
-            fail(f"--reference {text}: momentum sets how the rigid tree's twists are projected onto its joints; "
-                 f"write dynamics+joints+momentum")
+        rules = [p for p in parts if p in ("momentum", "coordinates")]
+        parts = [p for p in parts if p not in ("momentum", "coordinates")]
+        if len(rules) > 1:
+            fail(f"--reference {text}: write one of momentum or coordinates (two ways to keep the joints)")
+        if rules and not {"dynamics", "joints"} <= set(parts):
+            fail(f"--reference {text}: {rules[0]} sets how the rigid tree keeps its joints; "
+                 f"write dynamics+joints+{rules[0]}")
         if not set(parts) <= {"motors", "joints", "coupled", "dynamics", "trapezoidal", "push-out"} or len(set(parts)) != len(parts):
             fail(f"--reference {text}: constant-twist takes motors, joints or motors+joints, coupled "
                  f"with motors, or dynamics (e.g. constant-twist:motors+joints, constant-twist:motors+coupled+joints, "
                  f"constant-twist:dynamics+joints, +trapezoidal to move with the mean of the old and new twist, "
                  f"+push-out with dynamics to move the tree out of the world's surfaces after every step, "
                  f"+implicit-gyroscopic or +midpoint-gyroscopic with dynamics for gyroscopic terms at each step's end "
-                 f"or halfway, +momentum with dynamics+joints to project the twists onto the joints by impulses)")
+                 f"or halfway, +momentum with dynamics+joints to project the twists onto the joints by impulses, "
+                 f"+coordinates with dynamics+joints to step in the joints' coordinates)")
         if "coupled" in parts and "motors" not in parts:
             fail(f"--reference {text}: coupled is a form of the motors' response; write motors+coupled")
         if "dynamics" in parts and {"motors", "coupled"} & set(parts):
@@ -55,7 +58,7 @@ def _parse_reference(text: str) -> tuple[str, dict]:
         if "push-out" in parts and "dynamics" not in parts:
             fail(f"--reference {text}: push-out moves the rigid tree out of the surfaces; write dynamics+push-out")
         return name, ({k.replace("-", "_"): True for k in parts} | ({"substeps": n} if n > 1 else {})
-                      | ({"gyroscopic": gyro[0]} if gyro else {}) | ({"joint_velocities": "momentum"} if momentum else {}))
+                      | ({"gyroscopic": gyro[0]} if gyro else {}) | ({"joint_velocities": rules[0]} if rules else {}))
     if arg:
         fail(f"--reference {text}: {name} takes no setting")
     return name, {}
