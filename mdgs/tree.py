@@ -124,6 +124,16 @@ def _parent_pose(R: torch.Tensor, t: torch.Tensor, p: int) -> tuple[torch.Tensor
     return torch.eye(3, dtype=R.dtype, device=R.device).expand(R.shape[0], 3, 3), t.new_zeros(t.shape[0], 3)
 
 
+def _across(R: torch.Tensor, t: torch.Tensor, w: torch.Tensor, vo: torch.Tensor, lk, drives: DriveSet) -> tuple:
+    """What link ``lk``'s child is measured against: its parent's rotation ``R_p`` [B, 3, 3], angular velocity ``w_p``
+    and velocity field at the origin ``vo_p`` [B, 3] (zero for the world), the joint's axis ``n`` and anchor ``A``
+    [B, 3] in the world, of the poses ``R, t`` and the field ``v(y) = vo + w x y`` of each object [B, S, 3]."""
+    p = lk.parent
+    Rp, tp = _parent_pose(R, t, p)
+    wp, vop = (w[:, p], vo[:, p]) if p >= 0 else (w.new_zeros(w.shape[0], 3), w.new_zeros(w.shape[0], 3))
+    return (Rp, wp, vop, Rp @ drives.const(lk.axis, R.device), Rp @ drives.const(lk.anchor, R.device) + tp)
+
+
 def _joint_rates(R: torch.Tensor, t: torch.Tensor, c: torch.Tensor, vc: torch.Tensor, w: torch.Tensor, links: list,
                  drives: DriveSet) -> dict:
     """The generalised velocities of twists ``(vc, w)`` [B, S, 3] (the velocity at the points ``c`` [B, S, 3], the
@@ -134,16 +144,12 @@ def _joint_rates(R: torch.Tensor, t: torch.Tensor, c: torch.Tensor, vc: torch.Te
     (for hinges and slides the axis's own turn adds nothing to ``qdd`` while the joint holds)."""
     out = {"vc": vc, "w": w}
     vo = vc - torch.linalg.cross(w, c, dim=-1)  # the velocity field v(y) = vo + w x y
-    zero = vc.new_zeros(vc.shape[0], 3)
     for lk in links:
-        k, p = lk.child, lk.parent
-        Rp, tp = _parent_pose(R, t, p)
-        wp, vop = (w[:, p], vo[:, p]) if p >= 0 else (zero, zero)
-        n = Rp @ drives.const(lk.axis, R.device)
+        k = lk.child
+        Rp, wp, vop, n, A = _across(R, t, w, vo, lk, drives)
         if lk.kind == "hinge":
             out[k] = (n * (w[:, k] - wp)).sum(-1)
         elif lk.kind == "slide":
-            A = Rp @ drives.const(lk.anchor, R.device) + tp
             out[k] = (n * (vo[:, k] - vop + torch.linalg.cross(w[:, k] - wp, A, dim=-1))).sum(-1)
         elif lk.kind == "ball":
             out[k] = (Rp.transpose(-1, -2) @ (w[:, k] - wp).unsqueeze(-1)).squeeze(-1)
@@ -186,15 +192,11 @@ def _node_velocities(R: torch.Tensor, t: torch.Tensor, c: torch.Tensor, u: dict,
     parent's angular velocity plus its rate about the axis through the anchor, a ball's likewise by its rate vector,
     a slide's child moves with its parent plus its rate along the axis, a weld's with its parent."""
     fixed = drives.const(drives.fixed, R.device, torch.bool).view(1, -1, 1)
-    w = torch.where(fixed, 0.0, u["w"])
+    w = torch.where(fixed, 0.0, u["w"])  # new tensors: the children's rows are written below
     vo = torch.where(fixed, 0.0, u["vc"] - torch.linalg.cross(u["w"], c, dim=-1))
-    zero = vo.new_zeros(vo.shape[0], 3)
     for lk in links:
-        k, p = lk.child, lk.parent
-        Rp, tp = _parent_pose(R, t, p)
-        wp, vop = (w[:, p], vo[:, p]) if p >= 0 else (zero, zero)
-        n = Rp @ drives.const(lk.axis, R.device)
-        A = Rp @ drives.const(lk.anchor, R.device) + tp
+        k = lk.child
+        Rp, wp, vop, n, A = _across(R, t, w, vo, lk, drives)
         if lk.kind in ("hinge", "ball"):
             wk = wp + (u[k].unsqueeze(-1) * n if lk.kind == "hinge" else (Rp @ u[k].unsqueeze(-1)).squeeze(-1))
             vok = vop + torch.linalg.cross(wp - wk, A, dim=-1)
@@ -202,7 +204,6 @@ def _node_velocities(R: torch.Tensor, t: torch.Tensor, c: torch.Tensor, u: dict,
             wk, vok = wp, vop + u[k].unsqueeze(-1) * n
         else:
             wk, vok = wp, vop
-        w, vo = w.clone(), vo.clone()
         w[:, k], vo[:, k] = wk, vok
     return vo[:, seg] + torch.linalg.cross(w[:, seg], x, dim=-1)
 

@@ -21,6 +21,7 @@ import mujoco
 import numpy as np
 import pytest
 import torch
+from test_dynamics import GIMBAL  # rotational-center's build
 
 from mdgs.actuation import drives_of
 from mdgs.joints import joints_of
@@ -157,14 +158,6 @@ def test_a_double_pendulum_keeps_its_energy_in_joint_coordinates_and_gains_it_wi
                      dict(joint_velocities="coordinates", trapezoidal=False)):
         other = np.array(_pendulum_energy(**settings))
         assert np.abs(other - other[0]).max() > 50 * drift, (settings, other, verlet)
-
-
-GIMBAL = """<mujoco model="gimbal"><option gravity="0 0 0"/><worldbody>
-  <body name="hub" pos="0 0 1"><freejoint/><geom type="cylinder" size="0.1 0.02" mass="4.7"/>
-    <body name="upper" pos="0 0 0.08"><joint name="fold" type="hinge" axis="1 0 0"/>
-      <geom type="box" size="0.01 0.01 0.04" pos="0 0 0.04" mass="0.42"/>
-      <body name="rotor" pos="0 0 0.09"><joint name="spin" type="hinge" axis="0 0 1"/>
-        <geom type="cylinder" size="0.125 0.01" mass="3.75"/></body></body></body></worldbody></mujoco>"""
 
 
 @pytest.mark.parametrize("trapezoidal", [True, False])
