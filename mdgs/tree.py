@@ -64,11 +64,12 @@ def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: Driv
     with its parent and about (along) its joint by its rate, so that the joints hold by construction and no projection
     follows. With ``trapezoidal`` this is velocity Verlet, ``q' = q + h u + h^2 a(q, u) / 2`` and
     ``u' = u + h (a(q, u) + a(q', u + h a)) / 2`` (the end's accelerations taken at the predicted velocities and
-    reused as the next substep's start: ``substeps + 1`` solves a frame), which keeps a swinging pendulum's energy where the trapezoidal step of
-    the bodies' twists gains it; without, semi-implicit Euler in joint coordinates, MuJoCo's own integrator
-    (docs/mdgs-experiments.md, "Stepping in the joints' coordinates"). Joints that :mod:`mdgs.joints` leaves alone
-    (``joints.skipped``) and free joints make their child a root; ``pushed_out`` moves still project the joints after
-    the push (:func:`mdgs.joints.project_joints`), as the push keeps them only to first order."""
+    reused as the next substep's start: ``substeps + 1`` solves a frame), which keeps a swinging pendulum's energy
+    where the trapezoidal step of the bodies' twists gains it; without, semi-implicit Euler in joint coordinates,
+    MuJoCo's own integrator (docs/mdgs-experiments.md, "Stepping in the joints' coordinates"). Joints that
+    :mod:`mdgs.joints` leaves alone (``joints.skipped``) and free joints make their child a root; ``pushed_out``
+    moves still project the joints after the push (:func:`mdgs.joints.project_joints`), as the push keeps them only
+    to first order."""
     check_joint_velocities(joint_velocities)
     if joint_velocities == "coordinates":
         return _coordinates_step(x, v, ctrl, drives, ref, seg, n_obj, mass, dt, substeps, trapezoidal, pushed_out,
@@ -243,7 +244,7 @@ def _coordinates_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, driv
         pose = pose_of(xd, vd, ref, seg, n_obj, mass)
         if trapezoidal or k < substeps - 1:
             du_end = increments(xd, vd, pose)
-        if trapezoidal:  # u' = u + (h a + h a') / 2: the prediction less half the start's increments, plus half the end's
+        if trapezoidal:  # u' = u + (h a + h a') / 2: the prediction, less half of h a, plus half of h a'
             R, t, tw = pose
             u_pred = _joint_rates(R, t, tw.c, tw.vc, tw.omega, links, drives)
             u_new = {key: u_pred[key] + 0.5 * (du_end[key] - du[key]) for key in u_pred}

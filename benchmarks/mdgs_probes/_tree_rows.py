@@ -25,9 +25,9 @@ def tree_row(d, **settings) -> tuple[str, object]:
 
 def energy_of(d, keep=None):
     """``energy(x, v)`` for split ``d``'s scene: of the first trajectory of node positions and velocities ``x, v``
-    [B, N, 3] (float64), the sum over the moving bodies (the objects ``keep``, when given) of ``M |v_c|^2 / 2 + w . I w / 2 + M g z_c`` (J), with the
-    MJCF's masses, inertias and gravity and each body's pose and twist fitted to its nodes; conserved in free
-    flight, so what a rollout gains is its integrator's error."""
+    [B, N, 3] (float64), the sum over the moving bodies (the objects ``keep``, when given) of
+    ``M |v_c|^2 / 2 + w . I w / 2 + M g z_c`` (J), with the MJCF's masses, inertias and gravity and each body's pose
+    and twist fitted to its nodes; conserved in free flight, so what a rollout gains is its integrator's error."""
     sc = SceneGraph.from_static(d.static, has_contact=d.has_contact)
     dr = drives_of(d.mj_model(), d.static["node_body"], d.static["node_centroid"])
     g = float(np.linalg.norm(dr.gravity))
