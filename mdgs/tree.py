@@ -19,13 +19,14 @@ import torch
 
 from mdgs.actuation import (
     DriveSet,
+    Pose,
     coupled_motor_accelerations,
     pose_of,
     project_velocities,
     push_out,
 )
 from mdgs.joints import JointSet, project_joints
-from mdgs.rigid import advance, project, rotation_matrix
+from mdgs.rigid import advance, project, rotation_matrix, twist
 
 __all__ = ["JOINT_VELOCITIES", "check_joint_velocities", "tree_step", "warn_unprojected"]
 
@@ -249,7 +250,7 @@ def _coordinates_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, driv
             u_pred = _joint_rates(R, t, tw.c, tw.vc, tw.omega, links, drives)
             u_new = {key: u_pred[key] + 0.5 * (du_end[key] - du[key]) for key in u_pred}
             vd = _node_velocities(R, t, tw.c, u_new, links, drives, xd, seg)
-            pose = pose_of(xd, vd, ref, seg, n_obj, mass)
+            pose = Pose(R, t, twist(xd, vd, seg, n_obj, mass.to(dev)))  # the nodes have not moved: keep their fit
         if k < substeps - 1:
             du = du_end
     return xd.to(x.dtype), vd.to(v.dtype)
