@@ -13,7 +13,8 @@ dynamics solves with a slot for every contact candidate and runs every pass
 (:func:`mdgs.actuation.coupled_motor_accelerations`), so that its shapes do not follow the state: cheaper
 for one trajectory (no graph breaks), dearer in a batch (larger systems than the eager step's). ``--substeps N`` (N > 1) measures the tree and MDGS
 in N substeps with push-out instead (``studies/mdgs-substeps.toml``'s settings), whose compiled graph holds
-every substep's active-set passes: its compiling takes minutes.
+every substep's active-set passes: its compiling takes minutes. ``--joint-velocities coordinates`` steps that tree
+in its joint coordinates by velocity Verlet (``studies/mdgs-coordinates.toml``'s rows), one solve a frame more.
 
 ``--device cuda`` measures on the GPU instead, where ``--modes none cudagraphs`` compares the eager step with
 the step replayed as a CUDA graph (:func:`mdgs.models.compile_step`); ``--models tree`` or ``mdgs`` measures one
@@ -29,6 +30,7 @@ from bench_models import tiny_splits
 
 from mdgs.evaluate.cost import compiled_cost
 from mdgs.models import MODELS
+from mdgs.tree import JOINT_VELOCITIES
 
 
 def main() -> None:
@@ -40,24 +42,29 @@ def main() -> None:
     ap.add_argument("--modes", nargs="*", default=["none", "inductor"], choices=("none", "inductor", "aot", "cudagraphs"),
                     help="how the step runs: none (eager), inductor (torch.compile), aot (AOTInductor), cudagraphs (CUDA only)")
     ap.add_argument("--models", nargs="*", default=["tree", "mdgs"], choices=("tree", "mdgs"))
+    ap.add_argument("--joint-velocities", default="parent", choices=JOINT_VELOCITIES,
+                    help="with --substeps N > 1: how the tree keeps its joints (coordinates: stepped in them, Verlet)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     dev = torch.device(args.device)
     tr, te = tiny_splits(args.scene)
     ct, md = MODELS["constant-twist"], MODELS["mdgs"]
-    sub = {} if args.substeps == 1 else {"push_out": True}
-    tag = "" if args.substeps == 1 else f", {args.substeps} sub."
+    if args.joint_velocities != "parent" and args.substeps == 1:
+        ap.error("--joint-velocities needs --substeps above 1 (the studies' rows step the tree so)")
+    sub = {} if args.substeps == 1 else {"push_out": True, "joint_velocities": args.joint_velocities}
+    tag = "" if args.substeps == 1 else f", {args.substeps} sub." + (
+        "" if args.joint_velocities == "parent" else f", {args.joint_velocities}")
     builds = {"tree": (f"rigid tree + joints, trap.{tag}", lambda: ct.from_data(te, ct.Config(
                   dynamics=True, joints=True, trapezoidal=True, substeps=args.substeps, **sub))),
               "mdgs": (f"mdgs + dynamics prior{tag}", lambda: md.from_data(tr, md.Config(
                   actuation="dynamics", trapezoidal=True, prior_substeps=args.substeps, **sub)))}
     where = "CPU, 1 torch thread" if dev.type == "cpu" else f"{torch.cuda.get_device_name(dev)}, torch {torch.__version__}"
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, {where}")
-    print(f"{'model':36s}{'step':>10s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>12s}{'compile s':>11s}")
+    print(f"{'model':52s}{'step':>10s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>12s}{'compile s':>11s}")
     for label, build in (builds[k] for k in args.models):
         for mode in args.modes:
             r = compiled_cost(build().to(dev), te, mode, batched=args.batch)
-            print(f"{label:36s}{r['compiled']:>10s}{r['single']['ms_per_frame']:>10.3f}"
+            print(f"{label:52s}{r['compiled']:>10s}{r['single']['ms_per_frame']:>10.3f}"
                   f"{r['batched']['ms_per_trajectory_frame']:>12.3f}{r['compile_seconds']:>11.0f}"
                   + (f"  ({r['note']})" if r["note"] else ""), flush=True)
     print("step: none = eager, inductor = torch.compile, aot = AOTInductor, cudagraphs = replayed as a CUDA graph; ms/f b1: ms per frame, one "

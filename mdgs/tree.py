@@ -220,6 +220,10 @@ def _coordinates_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, driv
     links = _links_in_coordinates(drives, joints)
     refd, seg = ref.to(dev, f64), seg.to(dev)
     xd, vd = x.to(f64), v.to(f64)
+    if pushed_out and joints and not torch.compiler.is_compiling():
+        # the joints' groups (data-dependent shapes) built now, eagerly: only a push calls their projection below,
+        # and a compiled step, which cannot branch on the data, always does, reading the groups an eager step built
+        joints.tensors(seg, ref, mass, n_obj, dev)
 
     def increments(xd: torch.Tensor, vd: torch.Tensor, pose) -> dict:  # h qdd at (xd, vd), generalised
         acc = coupled_motor_accelerations(xd, ctrl, drives, ref, seg, n_obj, v=vd, mass=mass, dt=h,

@@ -181,3 +181,29 @@ def test_the_joints_hold_by_construction_on_a_gimbal_whose_rotor_spins_at_90_rad
             apart = max(apart, float((a_parent - a_child).norm()))
     assert apart < 1e-9
     assert float((s.x - x0).norm()) > 0.1
+
+
+def test_the_coordinates_step_exports_for_compiling_where_push_out_never_moves_the_bodies():
+    """``compile_step`` exports a step after one eager step; push-out then calls the joints' projection, whose groups
+    are built with data-dependent shapes (``torch.nonzero``), so they must exist before the export. On the cart
+    above a floor it does not reach, the eager step never pushes, while the traced step, which cannot branch on the
+    data, always projects: the export still traces (it failed with a data-dependent guard before the groups were
+    built up front), and the exported step gives the eager step's nodes to 1e-12 m."""
+    floored = CART.replace("<worldbody>", '<worldbody><geom type="plane" size="5 5 0.1" pos="0 0 -2"/>')
+    m, _, place, sim = _scene(floored.format(h=0.01, integrator="Euler"))
+    tree = sim(0.01, joint_velocities="coordinates", trapezoidal=True, substeps=2, push_out=True)
+    assert len(tree._drives.corner_obj)  # the boxes have corners the floor could push, 2 m below them
+    s = State(*_start(m, place, QPOS, QVEL))
+    c = torch.zeros(1, 0)
+    with torch.no_grad():
+        eager = tree.step(s, c)
+
+    class Step(torch.nn.Module):
+        def forward(self, x, v, u):
+            out = tree.step(State(x, v, {}), u)
+            return out.x, out.v
+
+    with torch.no_grad():
+        program = torch.export.export(Step(), (s.x, s.v, c), strict=False)
+        x, _ = program.module()(s.x, s.v, c)
+    assert float((x - eager.x).abs().max()) < 1e-12
