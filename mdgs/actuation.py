@@ -84,6 +84,10 @@ CONTACT_SPECULATIVE = False
 #: lets a sticking corner slide where its hold leaves the friction cone and sticks a sliding one whose
 #: friction would turn its slip round within the frame.
 CONTACT_PASSES = 4
+#: Contact models of the forward dynamics (``contact`` of :func:`coupled_motor_accelerations`, of the rigid tree
+#: and of MDGS's "dynamics" prior): "rigid", an inelastic impact that stops a held corner's approach and slip over
+#: the step (the studies' rule before "soft" existed); "soft", MuJoCo's soft contact (:func:`_soft_contact`).
+CONTACT_MODELS = ("rigid", "soft")
 #: Points on each rim of a colliding cylinder that stand in for it as corners against curved or bounded
 #: surfaces (a 16-gon's rim is within 2 % of the radius of the circle's); against a plane a rim touches
 #: at its exact lowest point instead (``RIM_SUPPORT`` points, :func:`contacts`).
@@ -119,6 +123,17 @@ FORWARD_DYNAMICS_REVISION = 1
 GYROSCOPIC = {"explicit": 0.0, "implicit": 1.0, "midpoint": 0.5}
 
 
+def check_contact(rule: str, push_out: bool = False) -> None:
+    """Raise ``ValueError`` naming the rules when ``rule`` is not one of ``CONTACT_MODELS``, or when the soft contact
+    comes with ``push_out``, which would undo the depth its spring pushes back from (the configs of the rigid tree
+    and of MDGS check theirs with it)."""
+    if rule not in CONTACT_MODELS:
+        raise ValueError(f"contact must be one of {', '.join(map(repr, CONTACT_MODELS))}, got {rule!r}")
+    if rule == "soft" and push_out:
+        raise ValueError("push_out moves every corner back onto its surface, which undoes the soft contact's "
+                         "depth (its spring): set push_out = false with contact = \"soft\"")
+
+
 def gyroscopic_weight(rule: str) -> float:
     """The weight of the step's end in the gyroscopic terms under ``rule`` (``GYROSCOPIC``); a rule it does not
     know raises ``ValueError`` naming the rules (the configs of the rigid tree and of MDGS check theirs with it)."""
@@ -126,7 +141,7 @@ def gyroscopic_weight(rule: str) -> float:
         raise ValueError(f"gyroscopic must be one of {', '.join(map(repr, GYROSCOPIC))}, got {rule!r}")
     return GYROSCOPIC[rule]
 
-__all__ = ["FORWARD_DYNAMICS_REVISION", "GYROSCOPIC", "gyroscopic_weight", "Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
+__all__ = ["FORWARD_DYNAMICS_REVISION", "GYROSCOPIC", "gyroscopic_weight", "CONTACT_MODELS", "check_contact", "Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
            "motor_accelerations", "coupled_motor_accelerations", "contacts", "push_out", "project_velocities", "Pose", "pose_of",
            "warn_unseen"]
 
@@ -255,6 +270,8 @@ class DriveSet:
     rim_friction: np.ndarray = field(default_factory=lambda: np.zeros(0))
     unseen: list[str] = field(default_factory=list)
     surfaces: list[Surface] = field(default_factory=list)
+    contact_soft: list[np.ndarray] = field(default_factory=list)
+    invweight: np.ndarray = field(default_factory=lambda: np.zeros(0))
     _cache: dict = field(default_factory=dict, repr=False)
 
     def __bool__(self) -> bool:
@@ -324,6 +341,28 @@ def _descends(m, c: int, b: int) -> bool:
     return c == b
 
 
+def _contact_param(m, g1: int, g2: int) -> np.ndarray:
+    """MuJoCo's ``solref`` (2) and ``solimp`` (5) of a contact between geoms ``g1`` and ``g2`` [7]
+    (``mj_contactParam``): the geom of higher ``priority``'s, else mixed by ``solmix`` (``solref`` taken as the
+    elementwise minimum where either is given directly, negative)."""
+    p1, p2 = int(m.geom_priority[g1]), int(m.geom_priority[g2])
+    if p1 != p2:
+        g = g1 if p1 > p2 else g2
+        return np.r_[m.geom_solref[g], m.geom_solimp[g]].astype(float)
+    s1, s2 = float(m.geom_solmix[g1]), float(m.geom_solmix[g2])
+    if s1 < 1e-15 and s2 < 1e-15:
+        mix = 0.5
+    elif s1 < 1e-15:
+        mix = 0.0
+    elif s2 < 1e-15:
+        mix = 1.0
+    else:
+        mix = s1 / (s1 + s2)
+    r1, r2 = np.asarray(m.geom_solref[g1], float), np.asarray(m.geom_solref[g2], float)
+    ref = mix * r1 + (1 - mix) * r2 if r1[0] > 0 and r2[0] > 0 else np.minimum(r1, r2)
+    return np.r_[ref, mix * np.asarray(m.geom_solimp[g1], float) + (1 - mix) * np.asarray(m.geom_solimp[g2], float)]
+
+
 def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> DriveSet:
     """The motors of a scene and its objects' inertial data (objects: the sorted distinct bodies with nodes).
 
@@ -352,6 +391,7 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
     out = DriveSet(mass=mass, inertia=inertia, inv_inertia=inv_inertia, com=com, fixed=bodies == 0,
                    gravity=np.array(m.opt.gravity, float))
     corners, corner_obj, corner_mu, on_rim, rims, rim_obj, rim_mu = [], [], [], [], [], [], []
+    corner_geom, rim_geom, surface_geom = [], [], []  # the geom of each corner, rim and surface
     signs = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], float)
     geom_name = lambda g: mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"#{g}"  # noqa: E731
     for g in range(m.ngeom):
@@ -365,6 +405,7 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
         if b == 0 and kind in SURFACE_KINDS:
             out.surfaces.append(Surface(kind, np.array(m.geom_pos[g], float), gq, np.array(m.geom_size[g], float),
                                         float(m.geom_friction[g][0]), geom_name(g)))
+            surface_geom.append(g)
         elif b == 0:
             out.unseen.append(f"geom {geom_name(g)} ({kind} of the world): nothing touches it, only planes, boxes, "
                               "spheres, capsules and cylinders of the world are touched")
@@ -372,6 +413,7 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
             corners.append(m.geom_pos[g] + (signs * m.geom_size[g]) @ gq.T)
             corner_obj += [obj_of[b]] * 8
             corner_mu += [float(m.geom_friction[g][0])] * 8
+            corner_geom += [g] * 8
             on_rim += [False] * 8
         elif b in obj_of and kind == "cylinder":
             r, h = m.geom_size[g][:2]
@@ -381,11 +423,13 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
             corners.append(m.geom_pos[g] + pts @ gq.T)
             corner_obj += [obj_of[b]] * len(pts)
             corner_mu += [float(m.geom_friction[g][0])] * len(pts)
+            corner_geom += [g] * len(pts)
             on_rim += [True] * len(pts)
             for side in (1.0, -1.0):
                 rims.append(np.r_[m.geom_pos[g] + side * h * gq[:, 2], gq[:, 2], r])
                 rim_obj.append(obj_of[b])
                 rim_mu.append(float(m.geom_friction[g][0]))
+                rim_geom.append(g)
         elif b in obj_of:
             out.unseen.append(f"geom {geom_name(g)} ({kind}): no contact points, only boxes and cylinders have them")
     if out.surfaces and corners:
@@ -393,6 +437,15 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
         out.corner_friction, out.on_rim = np.array(corner_mu), np.array(on_rim, bool)
     if out.surfaces and rims:
         out.rims, out.rim_obj, out.rim_friction = np.array(rims), np.array(rim_obj, int), np.array(rim_mu)
+    if out.surfaces and (corners or rims):  # each candidate's solref, solimp against each surface (contacts's order)
+        out.invweight = np.array([float(m.body_invweight0[int(b), 0]) for b in bodies])
+        off_rim = ~np.asarray(out.on_rim, bool)
+        for sf, gs in zip(out.surfaces, surface_geom):
+            gc = [g for g, keep in zip(corner_geom, off_rim if sf.kind == "plane" else np.ones(len(corner_geom), bool))
+                  if keep]
+            if sf.kind == "plane":
+                gc += [g for g in rim_geom for _ in range(RIM_SUPPORT)]
+            out.contact_soft.append(np.array([_contact_param(m, g, gs) for g in gc]).reshape(len(gc), 7))
     name = lambda kind, i: mujoco.mj_id2name(m, kind, i) or f"#{i}"  # noqa: E731
     kinds = {int(mujoco.mjtJoint.mjJNT_HINGE): "hinge", int(mujoco.mjtJoint.mjJNT_SLIDE): "slide",
              int(mujoco.mjtJoint.mjJNT_BALL): "ball", int(mujoco.mjtJoint.mjJNT_FREE): "free"}
@@ -655,6 +708,7 @@ class Contacts(NamedTuple):
     slide: torch.Tensor
     obj: torch.Tensor
     mu: torch.Tensor
+    soft: torch.Tensor | None = None
 
 
 def _surface_distance(q: torch.Tensor, kind: str, size: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
@@ -742,6 +796,7 @@ def contacts(R: torch.Tensor, t: torch.Tensor, tw, drives: DriveSet, dt: float) 
         normals.append(n @ rot.T)
     P, o, mu = torch.cat(Ps, 1), torch.cat(objs), torch.cat(mus)
     gap, n = torch.cat(gaps, 1), torch.cat(normals, 1)
+    soft = torch.cat([drives.const(a, dev) for a in drives.contact_soft]) if drives.contact_soft else None
     u = tw.vc[:, o] + torch.linalg.cross(tw.omega[:, o], P - tw.c[:, o], dim=-1)
     # tangents: n x e with e the world axis least along n, then n x t1
     e = torch.eye(3, dtype=f64, device=dev)[n.abs().argmin(-1)]
@@ -751,7 +806,7 @@ def contacts(R: torch.Tensor, t: torch.Tensor, tw, drives: DriveSet, dt: float) 
     un = (u * n).sum(-1)
     held = (gap < CONTACT_GAP) | (gap + dt * un.clamp_max(0.0) < CONTACT_GAP)
     slide = (u - un.unsqueeze(-1) * n).norm(dim=-1) > mu * drives.constants()["g"] * dt
-    return Contacts(P, frame, u, gap, held, slide, o, mu)
+    return Contacts(P, frame, u, gap, held, slide, o, mu, soft)
 
 
 def _solve(K: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -786,6 +841,31 @@ def _soft_reference(pos: torch.Tensor, vel: torch.Tensor, lk: Link) -> tuple[tor
     else:
         b, k = -lk.solref[1] / dmax, -lk.solref[0] / dmax ** 2
     return -b * vel - k * d * pos, ((1 - d) / d * lk.invweight).clamp_min(1e-15)
+
+
+def _soft_contact(gap: torch.Tensor, u: torch.Tensor, soft: torch.Tensor, invweight: torch.Tensor, mu: torch.Tensor,
+                  dt: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """MuJoCo's soft contact for corners at ``gap`` [B, C] (negative inside) moving at ``u`` [B, C, 3] in their
+    contact frames (two tangents, the normal), with the pairs' ``soft`` [C, 7] (``solref``, ``solimp``:
+    :func:`_contact_param`), the translational ``invweight`` [C] of the moving body (``body_invweight0``) and friction
+    ``mu`` [C]: the reference accelerations [B, C, 3] (``-b u_t`` along the tangents, ``-b u_n - k d gap`` along the
+    normal) and the regularisation [B, C, 3] of the rows. MuJoCo's pyramidal cone has four edges ``J_n +- mu J_t``,
+    each with ``R_e = (1 - d) / d * 2 mu^2 (1 + mu^2) w``; inside the cone (all four pushing) their sum and
+    differences are a normal row with ``R_e / 4`` and two tangent rows with ``R_e / (2 mu^2)``, which is what is
+    returned. The time constant is kept above ``2 dt`` as MuJoCo's ``refsafe`` does for its timestep."""
+    ref = soft[:, :2]
+    dmin, dmax, width, mid, power = (soft[:, 2 + i] for i in range(5))
+    tau = torch.where(ref[:, 0] > 0, ref[:, 0].clamp_min(2 * dt), ref[:, 0])
+    dmin, dmax = dmin.clamp(1e-4, 0.9999), dmax.clamp(1e-4, 0.9999)
+    k = torch.where(ref[:, 1] > 0, 1 / (dmax * tau * ref[:, 1]) ** 2, -ref[:, 1] / dmax ** 2)
+    b = torch.where(tau > 0, 2 / (dmax * tau), -tau / dmax)
+    x = (gap.abs() / width.clamp_min(1e-15)).clamp(0.0, 1.0)
+    y = torch.where(x < mid, x ** power / mid ** (power - 1), 1 - (1 - x) ** power / (1 - mid) ** (power - 1))
+    d = (dmin + y * (dmax - dmin)).clamp(1e-4, 0.9999)
+    a = torch.cat([-b.unsqueeze(-1) * u[..., :2], (-b * u[..., 2] - k * d * gap).unsqueeze(-1)], -1)
+    Re = (1 - d) / d * 2 * mu ** 2 * (1 + mu ** 2) * invweight
+    Rt = (Re / (2 * mu ** 2)).unsqueeze(-1)
+    return a, torch.cat([Rt, Rt, (Re / 4).unsqueeze(-1)], -1).clamp_min(1e-15)
 
 
 def _joint_angles(R: torch.Tensor, t: torch.Tensor, lk: Link, drives: DriveSet) -> torch.Tensor:
@@ -1029,7 +1109,8 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
 def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
                                 seg: torch.Tensor, n_obj: int, v: torch.Tensor | None = None,
                                 mass: torch.Tensor | None = None, dt: float | None = None,
-                                gyroscopic: str = "explicit", pose: Pose | None = None) -> torch.Tensor:
+                                gyroscopic: str = "explicit", pose: Pose | None = None,
+                                contact: str = "rigid") -> torch.Tensor:
     """Node accelerations [B, N, 3] (m/s^2) of the motors with every joint coupled: MuJoCo's ``M^-1 qfrc_actuator``.
 
     Unlike :func:`motor_accelerations` (the driven joint alone, its parent held) the parent recoils and
@@ -1092,6 +1173,13 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     degrees of freedom) share the load in the least-squares way (the held candidates of a batch are
     gathered into as many slots as its most held).
 
+    ``contact = "soft"``: MuJoCo's soft contact instead (:func:`_soft_contact`). A corner is held only inside its
+    surface (``gap < 0``, MuJoCo's rule with no margin), and its rows hold the reference accelerations of the
+    pair's ``solref`` and ``solimp`` (a spring and damper on the depth along the normal, a damper on the slip) with
+    MuJoCo's regularisation, ``J z - R l = a_ref``, instead of stopping the corner within the step; friction is
+    decided as above. With the four substeps of the studies' trees (2.5 ms) the contact's 10 ms time constant is
+    resolved, where one step per frame rang (docs/mdgs-experiments.md, "MuJoCo's soft contact").
+
     *Range limits* of hinges and slides (``Link.limit``): past a limit, or about to pass it within
     ``dt``, one row holds the joint's acceleration as MuJoCo's soft constraint does, ``J z - R l = a_ref``
     (:func:`_soft_reference`: MuJoCo's reference acceleration and regularisation from the joint's
@@ -1104,8 +1192,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     (tests/test_dynamics.py), one graph, dearer in batches (benchmarks/compiled_dynamics.py).
 
     Not modelled: the cone's exact boundary (a corner sticks or slides, each pass deciding from the last
-    pass's forces; ``CONTACT_PASSES`` bounds the search), rolling and torsional friction, the softness of MuJoCo's contacts (tried, worse at one step
-    per frame: docs/mdgs-experiments.md), limits of ball joints, damping, springs and friction loss, and
+    pass's forces; ``CONTACT_PASSES`` bounds the search), rolling and torsional friction, with the rigid rule the softness of MuJoCo's contacts (``contact
+    = "soft"`` models it), limits of ball joints, damping, springs and friction loss, and
     contact between moving bodies or with other geoms: ``drives.unseen`` names what a scene has of these, and the rigid tree and MDGS's
     "dynamics" prior warn with it when bound (:func:`warn_unseen`).
     """
@@ -1161,10 +1249,18 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     cand_J, cand_C, cand_r, cand_on, cand_held, cand_R, cand_mu, cand_ut = [], [], [], [], [], [], [], []
     if dynamic and (len(drives.corner_obj) or len(drives.rim_obj)):
         ct = contacts(R, t, tw, drives, dt)
+        soft = contact == "soft"
+        if soft:  # MuJoCo's contact point: halfway between the corner and its surface
+            P = ct.P - 0.5 * ct.gap.clamp_max(0.0).unsqueeze(-1) * ct.frame[:, :, 2]
+            ct = ct._replace(P=P, u=tw.vc[:, ct.obj] + torch.linalg.cross(w[:, ct.obj], P - tw.c[:, ct.obj], dim=-1))
         arm = ct.P - xs[:, ct.obj]  # [B, C, 3]
         Jc = _contact_rows(ct.frame, ct.P, ct.obj, xs, S)  # [B, C, 3, 6S]
         wk = w[:, ct.obj]
-        want = -torch.linalg.cross(wk, torch.linalg.cross(wk, arm, dim=-1), dim=-1) - ct.u / dt
+        # the point's acceleration less its centripetal part about the mass centre, J z, is held at -c - u / dt
+        # (rigid: c the centripetal part, the point's velocity u gone by the step's end) or at the soft
+        # reference (MuJoCo's rows hold J qacc, which is J z for a body whose frame's origin is its mass centre)
+        want = (torch.zeros_like(ct.u) if soft else
+                -torch.linalg.cross(wk, torch.linalg.cross(wk, arm, dim=-1), dim=-1) - ct.u / dt)
         ut = (ct.frame[:, :, :2] @ ct.u.unsqueeze(-1)).squeeze(-1)  # [B, C, 2] the slip
         uhat = ut / ut.norm(dim=-1).clamp_min(torch.finfo(f64).tiny).unsqueeze(-1)
         # a sliding corner's normal column carries the friction it feels: -mu |f_n| along its slip
@@ -1172,6 +1268,10 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         cand_J.append(Jc)
         cand_C.append(torch.cat([Jc[:, :, :2], torch.where(ct.slide.unsqueeze(-1), fric, Jc[:, :, 2]).unsqueeze(2)], 2))
         r = (ct.frame @ want.unsqueeze(-1)).squeeze(-1)  # [B, C, 3]
+        if soft:
+            a_soft, R_soft = _soft_contact(ct.gap, (ct.frame @ ct.u.unsqueeze(-1)).squeeze(-1), ct.soft,
+                                           drives.const(drives.invweight, dev)[ct.obj], ct.mu, dt)
+            r = r + a_soft
         if CONTACT_SPECULATIVE:  # end the frame on the surface under the trapezoidal step: end velocity
             # u_n' = min(0, -2 gap / dt - u_n), so that dt (u_n + u_n') / 2 = -gap where that needs no rebound
             un = (ct.u * ct.frame[:, :, 2]).sum(-1)
@@ -1179,8 +1279,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             r = torch.cat([r[..., :2], (r[..., 2] + extra).unsqueeze(-1)], -1)
         cand_r.append(r)
         cand_on.append(torch.stack([~ct.slide, ~ct.slide, torch.ones_like(ct.slide)], -1))
-        cand_held.append(ct.held)
-        cand_R.append(torch.full(ct.held.shape + (3,), CONTACT_COMPLIANCE, dtype=f64, device=dev))
+        cand_held.append(ct.gap < 0 if soft else ct.held)
+        cand_R.append(R_soft if soft else torch.full(ct.held.shape + (3,), CONTACT_COMPLIANCE, dtype=f64, device=dev))
         cand_mu.append(ct.mu)
         cand_ut.append(ut)
     for lk in drives.links if dynamic else ():

@@ -20,6 +20,7 @@ import torch
 from mdgs.actuation import (
     DriveSet,
     Pose,
+    check_contact,
     coupled_motor_accelerations,
     pose_of,
     project_velocities,
@@ -48,7 +49,7 @@ def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: Driv
               seg: torch.Tensor, n_obj: int, mass: torch.Tensor, dt: float, substeps: int = 1,
               trapezoidal: bool = False, pushed_out: bool = False,
               joints: JointSet | None = None, gyroscopic: str = "explicit",
-              joint_velocities: str = "parent") -> tuple[torch.Tensor, torch.Tensor]:
+              joint_velocities: str = "parent", contact: str = "rigid") -> tuple[torch.Tensor, torch.Tensor]:
     """``x', v'`` [B, N, 3] of the rigid tree after ``dt`` in ``substeps`` equal substeps (module docstring).
 
     ``ctrl`` [B, nu]; ``ref`` [N, 3] the nodes in their bodies' frames (:attr:`mdgs.graphs.SceneGraph.ref_shape`),
@@ -56,7 +57,8 @@ def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: Driv
     ``joints``: projected onto them after every substep; ``gyroscopic``: when in each substep the gyroscopic
     terms act (:data:`mdgs.actuation.GYROSCOPIC`); ``joint_velocities``: with ``joints``, the projected twists are
     the parent's across each joint ("parent", :func:`mdgs.joints.project_joints`) or the least kinetic-energy
-    change that keeps the joints' momentum ("momentum", :func:`mdgs.actuation.project_velocities`). Static nodes
+    change that keeps the joints' momentum ("momentum", :func:`mdgs.actuation.project_velocities`); ``contact``: the
+    contact model (:data:`mdgs.actuation.CONTACT_MODELS`; "soft" without ``pushed_out``). Static nodes
     are moved like any other: the caller keeps them in place.
 
     ``joint_velocities = "coordinates"`` steps the tree in its joint coordinates instead (:func:`_coordinates_step`):
@@ -72,9 +74,10 @@ def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: Driv
     moves still project the joints after the push (:func:`mdgs.joints.project_joints`), as the push keeps them only
     to first order."""
     check_joint_velocities(joint_velocities)
+    check_contact(contact, pushed_out)
     if joint_velocities == "coordinates":
         return _coordinates_step(x, v, ctrl, drives, ref, seg, n_obj, mass, dt, substeps, trapezoidal, pushed_out,
-                                 joints, gyroscopic)
+                                 joints, gyroscopic, contact)
     h = dt / substeps
     pose = None  # the objects' poses and twists at x, v, fitted once per state
     for _ in range(substeps):
@@ -82,7 +85,7 @@ def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: Driv
             pose = pose_of(x, v, ref, seg, n_obj, mass)
         tw = pose.tw
         acc = coupled_motor_accelerations(x, ctrl, drives, ref, seg, n_obj, v=v, mass=mass, dt=h, gyroscopic=gyroscopic,
-                                          pose=pose)
+                                          pose=pose, contact=contact)
         dvc, dw = project(acc * h, x, tw, seg, n_obj, mass)
         x, v = advance(x, tw, tw.vc + dvc, tw.omega + dw, h, seg, trapezoidal=trapezoidal)
         pose = None
@@ -212,7 +215,8 @@ def _node_velocities(R: torch.Tensor, t: torch.Tensor, c: torch.Tensor, u: dict,
 
 def _coordinates_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
                       seg: torch.Tensor, n_obj: int, mass: torch.Tensor, dt: float, substeps: int, trapezoidal: bool,
-                      pushed_out: bool, joints: JointSet | None, gyroscopic: str) -> tuple[torch.Tensor, torch.Tensor]:
+                      pushed_out: bool, joints: JointSet | None, gyroscopic: str,
+                      contact: str = "rigid") -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`tree_step` in joint coordinates (its docstring: velocity Verlet with ``trapezoidal``, else
     semi-implicit Euler); float64 inside, ``x', v'`` [B, N, 3] in ``x``'s dtype."""
     f64, dev = torch.float64, x.device
@@ -227,7 +231,7 @@ def _coordinates_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, driv
 
     def increments(xd: torch.Tensor, vd: torch.Tensor, pose) -> dict:  # h qdd at (xd, vd), generalised
         acc = coupled_motor_accelerations(xd, ctrl, drives, ref, seg, n_obj, v=vd, mass=mass, dt=h,
-                                          gyroscopic=gyroscopic, pose=pose)
+                                          gyroscopic=gyroscopic, pose=pose, contact=contact)
         dvc, dw = project(acc * h, xd, pose.tw, seg, n_obj, mass)
         return _joint_rates(pose.R, pose.t, pose.tw.c, dvc, dw, links, drives)
 

@@ -865,6 +865,28 @@ def test_rigid_tree_coordinates_adds_the_last_rigid_tree_row_stepped_in_joint_co
         load_study(_write(tmp_path, GOOD + "[references]\nrigid_tree = true\nrigid_tree_coordinates = true\n"))
 
 
+def test_rigid_tree_soft_adds_the_last_rigid_tree_row_with_soft_contact_in_place_of_push_out(tmp_path):
+    """``[references] rigid_tree_soft = true`` adds, per scene, the last rigid-tree row (not the momentum one) with
+    MuJoCo's soft contact (``ConstantTwistConfig.contact = "soft"``) and without the push-out that would undo it,
+    labelled as the reference names itself; it needs ``rigid_tree``."""
+    from mdgs.evaluate import reference_label
+
+    base = GOOD + ("[references]\njoints = true\nrigid_tree = true\nrigid_tree_trapezoidal = true\n"
+                   "rigid_tree_push_out = true\nrigid_tree_substeps = [4]\nrigid_tree_momentum = true\n"
+                   "rigid_tree_coordinates = true\n")
+    study = load_study(_write(tmp_path, base))
+    more = load_study(_write(tmp_path, base + "rigid_tree_soft = true\n"))
+    new = [c for c in cells_of(more) if c.key(more) not in {k.key(study) for k in cells_of(study)}]
+    assert {c.label for c in new} == {"rigid tree + joints, trapezoidal, 4 substeps, joint coordinates, soft contact"}
+    assert len(new) == len(study.scenes)
+    ct = MODELS["constant-twist"]
+    for c in new:
+        assert dict(c.settings)["contact"] == "soft" and "push_out" not in dict(c.settings)
+        assert reference_label(ct(ct.Config(**dict(c.settings)))) == c.label
+    with pytest.raises(StudyError, match="set rigid_tree = true with it"):
+        load_study(_write(tmp_path, GOOD + "[references]\nrigid_tree_soft = true\n"))
+
+
 def test_rigid_tree_gyroscopic_adds_the_last_rigid_tree_row_with_each_rule_of_the_gyroscopic_terms(tmp_path):
     """``[references] rigid_tree_gyroscopic = ["implicit", "midpoint"]`` adds, per scene, the last rigid-tree row with
     each rule (``ConstantTwistConfig.gyroscopic``), labelled as the reference names itself; the other cells keep

@@ -98,7 +98,8 @@ def reference_label(model: Simulator) -> str:
             return ("rigid tree" + (" + joints" if c.joints else "") + trap + (", push-out" if c.push_out else "")
                     + (f", {c.substeps} substeps" if c.substeps > 1 else "")
                     + (f", {c.gyroscopic} gyroscopic" if c.gyroscopic != "explicit" else "")
-                    + {"momentum": ", momentum projection", "coordinates": ", joint coordinates"}.get(c.joint_velocities, ""))
+                    + {"momentum": ", momentum projection", "coordinates": ", joint coordinates"}.get(c.joint_velocities, "")
+                    + (", soft contact" if c.contact == "soft" else ""))
         motors = " + coupled motors" if c.motors and c.coupled else " + motors" if c.motors else ""
         return "constant twist" + motors + (" + joints" if c.joints else "") + trap
     return model.name.replace("-", " ")

@@ -35,6 +35,7 @@ from mdgs.actuation import (
     actuation_forces,
     coupled_motor_accelerations,
     drives_of,
+    check_contact,
     gyroscopic_weight,
     motor_accelerations,
     push_out,
@@ -207,6 +208,9 @@ class MDGSConfig:
         parent's twist across the joint), "momentum" (the least kinetic-energy change, impulses at the joints) or
         "coordinates" (the tree stepped in its joint coordinates, nothing projected; velocity Verlet with
         ``trapezoidal``).
+    prior_contact : with ``actuation = "dynamics"``, the prior's contact model (:data:`mdgs.actuation.CONTACT_MODELS`):
+        "rigid" (a held corner stops within the step) or "soft" (MuJoCo's soft contact; with ``push_out = false``,
+        which would undo its depth).
     scales : where the scales left at 1.0 (``dx_scale``, ``dv_scale`` and, with ``object_scales``, the
         per-object ones) come from: "increments" (the std of the frame's increments under the integrator,
         as without priors g predicts them) or "residual" (what g must add to its zero output, that is to
@@ -253,6 +257,7 @@ class MDGSConfig:
     prior_substeps: int = 1
     gyroscopic: str = "explicit"
     joint_velocities: str = "parent"
+    prior_contact: str = "rigid"
     scales: str = "increments"
     noise: str = "auto"
     noise_sigma_x: float = -1.0
@@ -336,6 +341,10 @@ class MDGSConfig:
         if self.joint_velocities != "parent" and not (self.prior_substeps > 1 and self.joints):
             raise ValueError("joint_velocities sets how the prior's rigid tree keeps its joints; "
                              "set actuation = \"dynamics\", prior_substeps above 1 and joints = true with it")
+        check_contact(self.prior_contact, self.push_out)
+        if self.prior_contact != "rigid" and self.actuation != "dynamics":
+            raise ValueError("prior_contact sets the contact model of the \"dynamics\" prior's rigid tree; set actuation = "
+                             "\"dynamics\" with it")
         if self.gyroscopic != "explicit" and self.actuation != "dynamics":
             raise ValueError("gyroscopic sets how the rigid tree of the \"dynamics\" prior steps; set actuation = "
                              "\"dynamics\" with it")
@@ -920,14 +929,14 @@ class MDGS(Simulator):
             seg, mass, ref = scene.obj.to(dev), scene.mass.to(dev), scene.ref_shape.to(dev)
             xp, vp = tree_step(x.detach(), v.detach(), ctrl, self._drives, ref, seg, scene.n_obj, mass, c.dt,
                                c.prior_substeps, c.trapezoidal, c.push_out, self._joints if c.joints else None,
-                               c.gyroscopic, c.joint_velocities)
+                               c.gyroscopic, c.joint_velocities, c.prior_contact)
             m = scene.moving(dev).view(1, -1, 1)
             priors.append(PriorState(torch.where(m, xp, x.detach()), torch.where(m, vp, torch.zeros_like(vp))))
         elif c.actuation == "dynamics" and ctrl is not None:  # the whole tree's forward dynamics over dt
             seg, mass = scene.obj.to(dev), scene.mass.to(dev)
             priors.append(c.dt * coupled_motor_accelerations(x.detach(), ctrl, self._drives, scene.ref_shape.to(dev),
                                                              seg, scene.n_obj, v=v.detach(), mass=mass, dt=c.dt,
-                                                             gyroscopic=c.gyroscopic))
+                                                             gyroscopic=c.gyroscopic, contact=c.prior_contact))
         elif self._drives and ctrl is not None and c.actuation in ("step", "prior", "coupled"):
             # the pose enters without gradient (its Kabsch SVD has none for symmetric bodies; only an
             # unrolled training step, whose x carries one, would differentiate it)

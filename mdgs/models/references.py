@@ -34,6 +34,7 @@ import torch
 
 from mdgs.actuation import (
     DriveSet,
+    check_contact,
     coupled_motor_accelerations,
     drives_of,
     gyroscopic_weight,
@@ -83,6 +84,9 @@ class ConstantTwistConfig:
         :func:`mdgs.actuation.project_velocities`); the label gains ", momentum projection". Or "coordinates":
         the tree stepped in its joint coordinates, nothing projected (:func:`mdgs.tree.tree_step`; with
         ``trapezoidal`` velocity Verlet, else semi-implicit Euler); the label gains ", joint coordinates".
+    contact : with ``dynamics``, "rigid" (a held corner stops within the step) or "soft" (MuJoCo's soft contact,
+        :data:`mdgs.actuation.CONTACT_MODELS`; without ``push_out``, which would undo its depth); the label gains
+        ", soft contact".
     """
 
     motors: bool = False
@@ -94,6 +98,7 @@ class ConstantTwistConfig:
     substeps: int = 1
     gyroscopic: str = "explicit"
     joint_velocities: str = "parent"
+    contact: str = "rigid"
 
     def __post_init__(self):
         for k in ("motors", "joints", "coupled", "dynamics", "trapezoidal", "push_out"):
@@ -117,6 +122,9 @@ class ConstantTwistConfig:
         if self.joint_velocities != "parent" and not (self.dynamics and self.joints):
             raise ValueError("joint_velocities sets how the rigid tree keeps its joints; "
                              "set dynamics = true and joints = true with it")
+        check_contact(self.contact, self.push_out)
+        if self.contact != "rigid" and not self.dynamics:
+            raise ValueError("contact sets the rigid tree's contact model; set dynamics = true with it")
 
 
 class ConstantTwist(Simulator):
@@ -149,7 +157,7 @@ class ConstantTwist(Simulator):
         if self.config.dynamics:  # the whole tree's forward dynamics, in substeps (mdgs.tree)
             xn, vn = tree_step(x, v, ctrl, self._drives, ref, seg, sc.n_obj, mass, self._dt, self.config.substeps,
                                self.config.trapezoidal, self.config.push_out, self._joints,
-                               self.config.gyroscopic, self.config.joint_velocities)
+                               self.config.gyroscopic, self.config.joint_velocities, self.config.contact)
             return State(torch.where(m, xn, x), torch.where(m, vn, torch.zeros_like(vn)))
         tw = twist(x, v, seg, sc.n_obj, mass)
         vc, w = tw.vc, tw.omega

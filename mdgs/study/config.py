@@ -53,6 +53,8 @@ A study file has these tables (every key optional unless marked; defaults in the
                                         # impulses (default false; ConstantTwistConfig.joint_velocities = "momentum")
     rigid_tree_coordinates = true       # also the last rigid tree row stepped in its joint coordinates (default
                                         # false; ConstantTwistConfig.joint_velocities = "coordinates")
+    rigid_tree_soft = true              # also the last rigid tree row (not the momentum one) with MuJoCo's soft
+                                        # contact instead of push-out (default false; ConstantTwistConfig.contact)
 
     [resolution]                        # MDGS error and cost against the element resolution
     model = "mdgs"                      # a registry name, or the label of a [[models]] row (its settings)
@@ -149,6 +151,7 @@ class StudyConfig:
     rigid_tree_gyroscopic: tuple[str, ...] = ()
     rigid_tree_momentum: bool = False
     rigid_tree_coordinates: bool = False
+    rigid_tree_soft: bool = False
     resolution_model: str = "mdgs"
     resolution_label: str = "mdgs"
     resolution_settings: tuple[tuple[str, object], ...] = ()
@@ -312,7 +315,7 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
     rf = _take(doc, "references", dict, f, {})
     _unknown(rf, {"mujoco_dt_factors", "motors", "joints", "rigid_tree", "rigid_tree_trapezoidal",
                   "rigid_tree_push_out", "rigid_tree_substeps", "rigid_tree_gyroscopic", "rigid_tree_momentum",
-                  "rigid_tree_coordinates"},
+                  "rigid_tree_coordinates", "rigid_tree_soft"},
              f"{f} [references]")
     dts = _ints(rf, "mujoco_dt_factors", f"{f} [references]", (1, 2, 5, 10, 20), lo=1)
     motors = _take(rf, "motors", bool, f"{f} [references]", False)
@@ -337,6 +340,10 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
     if rigid_coordinates and not (rigid_tree and joints):
         raise StudyError(f"{f} [references]: rigid_tree_coordinates steps the rigid tree in its joint coordinates; "
                          "set rigid_tree = true and joints = true with it")
+    rigid_soft = _take(rf, "rigid_tree_soft", bool, f"{f} [references]", False)
+    if rigid_soft and not rigid_tree:
+        raise StudyError(f"{f} [references]: rigid_tree_soft gives the rigid tree MuJoCo's soft contact; set "
+                         "rigid_tree = true with it")
 
     rs = _take(doc, "resolution", dict, f, {})
     where = f"{f} [resolution]"
@@ -358,5 +365,6 @@ def load_study(path: str | os.PathLike) -> StudyConfig:
                        rigid_tree_push_out=rigid_push, rigid_tree_substeps=rigid_sub,
                        rigid_tree_gyroscopic=rigid_gyro,
                        rigid_tree_momentum=rigid_momentum, rigid_tree_coordinates=rigid_coordinates,
+                       rigid_tree_soft=rigid_soft,
                        resolution_model=rmodel, resolution_label=rlabel, resolution_settings=rsettings,
                        resolution_refine=refine, resolution_seeds=_ints(rs, "seeds", where, (0,)))

@@ -170,6 +170,10 @@ def _reference_cells(study: StudyConfig, sc: SceneEntry, refine: int = 1) -> lis
         _, last, settings = next(s for s in reversed(specs) if ("joint_velocities", "momentum") not in s[2])
         specs.append(("constant-twist", f"{last}, joint coordinates",
                       tuple(sorted(settings + (("joint_velocities", "coordinates"),)))))
+    if study.rigid_tree_soft:  # the last rigid tree row (not the momentum one) with soft contact instead of push-out
+        _, last, settings = next(s for s in reversed(specs) if ("joint_velocities", "momentum") not in s[2])
+        specs.append(("constant-twist", last.replace(", push-out", "") + ", soft contact",
+                      tuple(sorted([kv for kv in settings if kv[0] != "push_out"] + [("contact", "soft")]))))
     specs += [("mujoco", f"mujoco dt x{k}", (("dt_factor", k),)) for k in study.mujoco_dt_factors]
     return [Cell("reference", sc, model, label + tail, settings, refine=refine) for model, label, settings in specs]
 

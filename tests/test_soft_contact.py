@@ -1,0 +1,182 @@
+"""MuJoCo's soft contact in the forward dynamics (``contact = "soft"`` of
+:func:`mdgs.actuation.coupled_motor_accelerations`, of the rigid tree and of MDGS's "dynamics" prior).
+
+Checked against MuJoCo itself: a box pressed into the floor, flat or tilted onto an edge, still or moving, has
+MuJoCo's accelerations (``mj_forward`` with the pyramidal cone and the Newton solver run to 1e-14); a box dropped on
+the floor comes to rest at MuJoCo's depth. Tolerances: the accelerations agree to 1e-6 relative (float64 on both
+sides; the only approximation, the pyramid's four edges read as a normal and two tangent rows, is exact while every
+edge pushes, which each case checks in MuJoCo's forces); the resting depth (7 microns) to 1e-4 relative: at rest
+the depth is set by the spring and the regularisation alone, not by the step (MuJoCo steps 0.5 ms, the tree four
+2.5 ms substeps a 10 ms frame), and 0.6 s settles both far below that.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from mdgs.actuation import coupled_motor_accelerations, drives_of
+from mdgs.models import MODELS
+from mdgs.rigid import project, twist
+from mdgs.tree import tree_step
+
+H = 0.05  # half side of the test box (m)
+BOX = f"""<mujoco model="box">
+  <option gravity="0 0 -9.81" cone="pyramidal" timestep="0.0005" solver="Newton" tolerance="1e-14"
+          iterations="200"/>
+  <default><geom friction="0.8 0.005 0.0001" solref="0.01 1" solimp="0.95 0.99 0.001"/></default>
+  <worldbody>
+    <geom name="floor" type="plane" size="5 5 0.1"/>
+    <body name="box" pos="0 0 1">
+      <freejoint/>
+      <geom type="box" size="{H} {H} {H}" mass="2"/>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+SIGNS = np.array([[a, b, c] for a in (-1, 1) for b in (-1, 1) for c in (-1, 1)], float)
+REF = 0.5 * H * SIGNS  # eight nodes at the box's half-corners, in its body frame
+
+
+def _pose(tilt: float, depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The box turned by ``tilt`` about x with its lowest corner ``depth`` below the floor: quaternion, R, t."""
+    q = np.zeros(4)
+    mujoco.mju_axisAngle2Quat(q, np.array([1.0, 0.0, 0.0]), tilt)
+    R = np.zeros(9)
+    mujoco.mju_quat2Mat(R, q)
+    R = R.reshape(3, 3)
+    low = min(float((R @ (H * s))[2]) for s in SIGNS)
+    return q, R, np.array([0.0, 0.0, -low - depth])
+
+
+@pytest.mark.parametrize("depth, vz, tilt, wx", [
+    (2e-4, 0.0, 0.0, 0.0),  # resting flat, inside the impedance's width
+    (1e-3, -0.1, 0.0, 0.0),  # sinking flat, at the width
+    (3e-3, 0.02, 0.0, 0.0),  # rising flat, past the width
+    (5e-4, 0.0, 0.3, 0.0),  # on an edge, still
+    (5e-4, -0.05, 0.3, 0.5),  # on an edge, sinking and turning
+])
+def test_soft_contact_accelerations_are_mujocos_for_a_box_pressed_into_the_floor(depth, vz, tilt, wx):
+    m = mujoco.MjModel.from_xml_string(BOX)
+    d = mujoco.MjData(m)
+    q, R, t = _pose(tilt, depth)
+    d.qpos[:3], d.qpos[3:7] = t, q
+    d.qvel[2], d.qvel[3] = vz, wx  # a turn about x is about the body's x as well
+    mujoco.mj_forward(m, d)
+    assert d.ncon in (2, 4) and d.efc_force.min() > 0  # every edge of every pyramid pushes
+    ds = drives_of(m, np.ones(8, int), REF)
+    x = torch.tensor(REF @ R.T + t)[None]
+    v = torch.tensor(np.array([0.0, 0.0, vz]) + np.cross(R @ np.array([wx, 0.0, 0.0]), REF @ R.T))[None]
+    seg, mass = torch.zeros(8, dtype=torch.long), torch.full((8,), 0.25, dtype=torch.float64)
+    acc = coupled_motor_accelerations(x, torch.zeros(1, 0), ds, torch.tensor(REF), seg, 1, v=v, mass=mass, dt=0.0025,
+                                      contact="soft")
+    a, alpha = project(acc, x, twist(x, v, seg, 1, mass), seg, 1, mass)
+    scale = np.abs(d.qacc).max()
+    np.testing.assert_allclose(a[0, 0].numpy(), d.qacc[:3], rtol=1e-6, atol=1e-6 * scale)
+    np.testing.assert_allclose(alpha[0, 0].numpy(), R @ d.qacc[3:], rtol=1e-6, atol=1e-6 * scale)
+
+
+def test_the_rigid_contact_stops_the_same_sinking_box_where_the_soft_one_lets_it_spring_back():
+    """The rule matters: at 1 mm deep and sinking at 0.1 m/s the rigid rule stops the corners within the step
+    (``a = 0.1 / dt`` up), the soft one pushes back with MuJoCo's spring and damper, a different number."""
+    m = mujoco.MjModel.from_xml_string(BOX)
+    ds = drives_of(m, np.ones(8, int), REF)
+    _, R, t = _pose(0.0, 1e-3)
+    x = torch.tensor(REF @ R.T + t)[None]
+    v = torch.tensor(np.tile([0.0, 0.0, -0.1], (8, 1)))[None]
+    seg, mass = torch.zeros(8, dtype=torch.long), torch.full((8,), 0.25, dtype=torch.float64)
+    az = {rule: float(coupled_motor_accelerations(x, torch.zeros(1, 0), ds, torch.tensor(REF), seg, 1, v=v, mass=mass,
+                                                  dt=0.0025, contact=rule)[0, :, 2].mean()) for rule in ("rigid", "soft")}
+    assert az["rigid"] == pytest.approx(0.1 / 0.0025, rel=1e-3)
+    assert abs(az["soft"] - az["rigid"]) > 5.0
+
+
+def test_a_box_dropped_on_the_floor_comes_to_rest_at_mujocos_depth_under_soft_contact():
+    m = mujoco.MjModel.from_xml_string(BOX)
+    d = mujoco.MjData(m)
+    q, R, t = _pose(0.0, -0.01)  # 1 cm above the floor
+    d.qpos[:3], d.qpos[3:7] = t, q
+    for _ in range(1200):  # 0.6 s
+        mujoco.mj_step(m, d)
+    depth_mj = H - d.qpos[2]
+    ds = drives_of(m, np.ones(8, int), REF)
+    x = torch.tensor(REF @ R.T + t)[None]
+    v = torch.zeros_like(x)
+    seg, mass = torch.zeros(8, dtype=torch.long), torch.full((8,), 0.25, dtype=torch.float64)
+    for _ in range(60):  # 0.6 s of 10 ms frames
+        x, v = tree_step(x, v, torch.zeros(1, 0), ds, torch.tensor(REF), seg, 1, mass, 0.01, substeps=4,
+                         trapezoidal=True, contact="soft")
+    depth = H - float(x[0, :, 2].mean())
+    assert 1e-6 < depth_mj < 1e-4  # a soft contact's depth: sunk, by microns here
+    assert depth == pytest.approx(depth_mj, rel=1e-4)
+    assert float(v.abs().max()) < 1e-3
+
+
+def test_the_contact_rule_is_checked_and_the_soft_contact_is_refused_with_push_out():
+    ct, md = MODELS["constant-twist"], MODELS["mdgs"]
+    with pytest.raises(ValueError, match="contact must be one of 'rigid', 'soft'"):
+        ct.Config(dynamics=True, contact="springy")
+    with pytest.raises(ValueError, match="set push_out = false with contact"):
+        ct.Config(dynamics=True, push_out=True, contact="soft")
+    with pytest.raises(ValueError, match="set dynamics = true"):
+        ct.Config(contact="soft")
+    with pytest.raises(ValueError, match="set push_out = false with contact"):
+        md.Config(actuation="dynamics", push_out=True, prior_contact="soft")
+    with pytest.raises(ValueError, match="set actuation"):
+        md.Config(prior_contact="soft")
+    assert ct.Config().contact == md.Config().prior_contact == "rigid"
+    with pytest.raises(ValueError, match="set push_out = false with contact"):
+        tree_step(torch.zeros(1, 8, 3), torch.zeros(1, 8, 3), torch.zeros(1, 0), drives_of(
+            mujoco.MjModel.from_xml_string(BOX), np.ones(8, int), REF), torch.tensor(REF), torch.zeros(8, dtype=torch.long),
+            1, torch.ones(8), 0.01, pushed_out=True, contact="soft")
+
+
+def test_untrained_mdgs_with_the_soft_contact_prior_steps_as_the_soft_contact_rigid_tree(tiny_cubli):
+    """``prior_contact = "soft"`` reaches the prior's tree: MDGS untrained (g's output zero) is the "rigid tree ...,
+    soft contact" reference, here in the studies' setting (four substeps, joint coordinates, velocity Verlet), to
+    2e-6 m over 10 frames (float32 against float64: 1.6e-7 here); the rigid-contact reference, whose cube rests on the
+    floor instead of microns deep in it, is 1e-5 m off or more (1.8e-5 here)."""
+    from mdgs.data.split import load_split
+    from mdgs.models.base import State, batch_of
+
+    tr, te = load_split(tiny_cubli / "train.h5"), load_split(tiny_cubli / "test.h5")
+    b = batch_of(te, te.pairs(0)[:4], "cpu")
+    ct, md = MODELS["constant-twist"], MODELS["mdgs"]
+    tree = dict(joints=True, trapezoidal=True, joint_velocities="coordinates")
+    sims = {"soft": ct.from_data(te, ct.Config(dynamics=True, substeps=4, contact="soft", **tree)),
+            "rigid": ct.from_data(te, ct.Config(dynamics=True, substeps=4, push_out=True, **tree)),
+            "mdgs": md.from_data(tr, md.Config(actuation="dynamics", prior_substeps=4, prior_contact="soft", **tree))}
+    traj = {}
+    for name, sim in sims.items():
+        sim.bind(te)
+        sim.eval()
+        st, xs = State(b.x, b.v), []
+        with torch.no_grad():
+            for _ in range(10):
+                st = sim.step(st, b.ctrl)
+                xs.append(st.x)
+        traj[name] = torch.stack(xs, 1).double()
+    moving = ~sims["mdgs"].scene_on("cpu").static
+    off = {k: float((traj[k] - traj["soft"])[:, :, moving].abs().max()) for k in ("mdgs", "rigid")}
+    assert off["mdgs"] < 2e-6 and off["rigid"] > 1e-5
+
+
+def test_the_compiled_soft_contact_gives_the_eager_accelerations():
+    """Traced (``torch.compile``, dynamo's ``eager`` backend, no graph break) the soft contact holds every candidate in
+    a slot and runs every pass: the same accelerations as eagerly, for a box just above the floor (nothing held), one
+    pressed in flat and sinking, and one on an edge turning, to 1e-9 of the acceleration's scale (float64 solves of
+    different sizes)."""
+    m = mujoco.MjModel.from_xml_string(BOX)
+    ds = drives_of(m, np.ones(8, int), REF)
+    seg, mass = torch.zeros(8, dtype=torch.long), torch.full((8,), 0.25, dtype=torch.float64)
+    compiled = torch.compile(coupled_motor_accelerations, backend="eager", fullgraph=True)
+    for tilt, depth, vz, wx in [(0.0, -1e-3, -0.1, 0.0), (0.0, 1e-3, -0.1, 0.0), (0.3, 5e-4, -0.05, 0.5)]:
+        _, R, t = _pose(tilt, depth)
+        x = torch.tensor(REF @ R.T + t)[None]
+        v = torch.tensor(np.array([0.0, 0.0, vz]) + np.cross(R @ np.array([wx, 0.0, 0.0]), REF @ R.T))[None]
+        args = (x, torch.zeros(1, 0), ds, torch.tensor(REF), seg, 1)
+        eager = coupled_motor_accelerations(*args, v=v, mass=mass, dt=0.0025, contact="soft")
+        got = compiled(*args, v=v, mass=mass, dt=0.0025, contact="soft")
+        np.testing.assert_allclose(got.numpy(), eager.numpy(), rtol=0, atol=1e-9 * max(1.0, float(eager.abs().max())))
