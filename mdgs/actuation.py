@@ -852,7 +852,10 @@ def _soft_contact(gap: torch.Tensor, u: torch.Tensor, soft: torch.Tensor, invwei
     normal) and the regularisation [B, C, 3] of the rows. MuJoCo's pyramidal cone has four edges ``J_n +- mu J_t``,
     each with ``R_e = (1 - d) / d * 2 mu^2 (1 + mu^2) w``; inside the cone (all four pushing) their sum and
     differences are a normal row with ``R_e / 4`` and two tangent rows with ``R_e / (2 mu^2)``, which is what is
-    returned. The time constant is kept above ``2 dt`` as MuJoCo's ``refsafe`` does for its timestep."""
+    returned. The time constant is kept above ``2 dt`` as MuJoCo's ``refsafe`` does for its timestep. Read as the
+    pyramid whatever the MJCF's ``cone`` (an elliptic cone's regularisation differs) and ``condim`` (torsional and
+    rolling friction are not modelled, and ``condim = 1``'s single row would be softer for a frictionless pair):
+    the studies' scenes are pyramidal with ``condim = 3``."""
     ref = soft[:, :2]
     dmin, dmax, width, mid, power = (soft[:, 2 + i] for i in range(5))
     tau = torch.where(ref[:, 0] > 0, ref[:, 0].clamp_min(2 * dt), ref[:, 0])
@@ -863,9 +866,10 @@ def _soft_contact(gap: torch.Tensor, u: torch.Tensor, soft: torch.Tensor, invwei
     y = torch.where(x < mid, x ** power / mid ** (power - 1), 1 - (1 - x) ** power / (1 - mid) ** (power - 1))
     d = (dmin + y * (dmax - dmin)).clamp(1e-4, 0.9999)
     a = torch.cat([-b.unsqueeze(-1) * u[..., :2], (-b * u[..., 2] - k * d * gap).unsqueeze(-1)], -1)
-    Re = (1 - d) / d * 2 * mu ** 2 * (1 + mu ** 2) * invweight
-    Rt = (Re / (2 * mu ** 2)).unsqueeze(-1)
-    return a, torch.cat([Rt, Rt, (Re / 4).unsqueeze(-1)], -1).clamp_min(1e-15)
+    base = (1 - d) / d * invweight
+    Rt = (base * (1 + mu ** 2)).unsqueeze(-1)  # R_e / (2 mu^2)
+    Rn = base * mu ** 2 * (1 + mu ** 2) / 2  # R_e / 4 (MuJoCo's pyramid of a frictionless pair: next to none)
+    return a, torch.cat([Rt, Rt, Rn.unsqueeze(-1)], -1).clamp_min(1e-15)
 
 
 def _joint_angles(R: torch.Tensor, t: torch.Tensor, lk: Link, drives: DriveSet) -> torch.Tensor:

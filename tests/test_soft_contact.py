@@ -180,3 +180,16 @@ def test_the_compiled_soft_contact_gives_the_eager_accelerations():
         eager = coupled_motor_accelerations(*args, v=v, mass=mass, dt=0.0025, contact="soft")
         got = compiled(*args, v=v, mass=mass, dt=0.0025, contact="soft")
         np.testing.assert_allclose(got.numpy(), eager.numpy(), rtol=0, atol=1e-9 * max(1.0, float(eager.abs().max())))
+
+
+def test_the_soft_contact_tree_is_a_reference_of_mdgs_evaluate_and_is_refused_with_push_out():
+    import typer
+
+    from mdgs.cli.evaluate import _parse_reference
+
+    assert _parse_reference("constant-twist:dynamics+joints+trapezoidal+coordinates+substeps=4+soft-contact")[1] == {
+        "dynamics": True, "joints": True, "trapezoidal": True, "joint_velocities": "coordinates", "substeps": 4,
+        "contact": "soft"}
+    for bad in ("constant-twist:joints+soft-contact", "constant-twist:dynamics+push-out+soft-contact"):
+        with pytest.raises(typer.Exit):
+            _parse_reference(bad)

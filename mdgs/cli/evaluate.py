@@ -36,6 +36,12 @@ def _parse_reference(text: str) -> tuple[str, dict]:
             fail(f"--reference {text}: write one of implicit-gyroscopic or midpoint-gyroscopic")
         if gyro and "dynamics" not in parts:
             fail(f"--reference {text}: {gyro[0]}-gyroscopic sets how the rigid tree steps; write dynamics+{gyro[0]}-gyroscopic")
+        soft = "soft-contact" in parts
+        parts = [p for p in parts if p != "soft-contact"]
+        if soft and "dynamics" not in parts:
+            fail(f"--reference {text}: soft-contact gives the rigid tree MuJoCo's soft contact; write dynamics+soft-contact")
+        if soft and "push-out" in parts:
+            fail(f"--reference {text}: push-out would undo the soft contact's depth; write one of push-out or soft-contact")
         rules = [p for p in parts if p in ("momentum", "coordinates")]
         parts = [p for p in parts if p not in ("momentum", "coordinates")]
         if len(rules) > 1:
@@ -50,7 +56,8 @@ def _parse_reference(text: str) -> tuple[str, dict]:
                  f"+push-out with dynamics to move the tree out of the world's surfaces after every step, "
                  f"+implicit-gyroscopic or +midpoint-gyroscopic with dynamics for gyroscopic terms at each step's end "
                  f"or halfway, +momentum with dynamics+joints to project the twists onto the joints by impulses, "
-                 f"+coordinates with dynamics+joints to step in the joints' coordinates)")
+                 f"+coordinates with dynamics+joints to step in the joints' coordinates, +soft-contact with dynamics "
+                 f"for MuJoCo's soft contact)")
         if "coupled" in parts and "motors" not in parts:
             fail(f"--reference {text}: coupled is a form of the motors' response; write motors+coupled")
         if "dynamics" in parts and {"motors", "coupled"} & set(parts):
@@ -58,7 +65,8 @@ def _parse_reference(text: str) -> tuple[str, dict]:
         if "push-out" in parts and "dynamics" not in parts:
             fail(f"--reference {text}: push-out moves the rigid tree out of the surfaces; write dynamics+push-out")
         return name, ({k.replace("-", "_"): True for k in parts} | ({"substeps": n} if n > 1 else {})
-                      | ({"gyroscopic": gyro[0]} if gyro else {}) | ({"joint_velocities": rules[0]} if rules else {}))
+                      | ({"gyroscopic": gyro[0]} if gyro else {}) | ({"joint_velocities": rules[0]} if rules else {})
+                      | ({"contact": "soft"} if soft else {}))
     if arg:
         fail(f"--reference {text}: {name} takes no setting")
     return name, {}
