@@ -15,6 +15,8 @@ for one trajectory (no graph breaks), dearer in a batch (larger systems than the
 in N substeps with push-out instead (``studies/mdgs-substeps.toml``'s settings), whose compiled graph holds
 every substep's active-set passes: its compiling takes minutes. ``--joint-velocities coordinates`` steps that tree
 in its joint coordinates by velocity Verlet (``studies/mdgs-coordinates.toml``'s rows), one solve a frame more.
+``--contact rigid soft`` measures the substepped tree and MDGS with each contact model in turn, side by side in one
+run (soft: MuJoCo's soft contact without push-out, ``studies/mdgs-soft.toml``'s rows).
 
 ``--device cuda`` measures on the GPU instead, where ``--modes none cudagraphs`` compares the eager step with
 the step replayed as a CUDA graph (:func:`mdgs.models.compile_step`); ``--models tree`` or ``mdgs`` measures one
@@ -44,6 +46,8 @@ def main() -> None:
     ap.add_argument("--models", nargs="*", default=["tree", "mdgs"], choices=("tree", "mdgs"))
     ap.add_argument("--joint-velocities", default="parent", choices=JOINT_VELOCITIES,
                     help="with --substeps N > 1: how the tree keeps its joints (coordinates: stepped in them, Verlet)")
+    ap.add_argument("--contact", nargs="*", default=["rigid"], choices=("rigid", "soft"),
+                    help="with --substeps N > 1: the contact models to measure in turn (soft: without push-out)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     dev = torch.device(args.device)
@@ -51,17 +55,24 @@ def main() -> None:
     ct, md = MODELS["constant-twist"], MODELS["mdgs"]
     if args.joint_velocities != "parent" and args.substeps == 1:
         ap.error("--joint-velocities needs --substeps above 1 (the studies' rows step the tree so)")
-    sub = {} if args.substeps == 1 else {"push_out": True, "joint_velocities": args.joint_velocities}
-    tag = "" if args.substeps == 1 else f", {args.substeps} sub." + (
-        "" if args.joint_velocities == "parent" else f", {args.joint_velocities}")
-    builds = {"tree": (f"rigid tree + joints, trap.{tag}", lambda: ct.from_data(te, ct.Config(
-                  dynamics=True, joints=True, trapezoidal=True, substeps=args.substeps, **sub))),
-              "mdgs": (f"mdgs + dynamics prior{tag}", lambda: md.from_data(tr, md.Config(
-                  actuation="dynamics", trapezoidal=True, prior_substeps=args.substeps, **sub)))}
+    if args.contact != ["rigid"] and args.substeps == 1:
+        ap.error("--contact needs --substeps above 1 (the studies' rows step the tree so)")
+    builds = []
+    for contact in args.contact:
+        sub = {} if args.substeps == 1 else {"push_out": contact == "rigid", "joint_velocities": args.joint_velocities}
+        tag = "" if args.substeps == 1 else f", {args.substeps} sub." + (
+            "" if args.joint_velocities == "parent" else f", {args.joint_velocities}") + (
+            ", soft" if contact == "soft" else "")
+        builds += [(k, label, build) for k, label, build in (
+            ("tree", f"rigid tree + joints, trap.{tag}", lambda sub=sub, contact=contact: ct.from_data(te, ct.Config(
+                dynamics=True, joints=True, trapezoidal=True, substeps=args.substeps, contact=contact, **sub))),
+            ("mdgs", f"mdgs + dynamics prior{tag}", lambda sub=sub, contact=contact: md.from_data(tr, md.Config(
+                actuation="dynamics", trapezoidal=True, prior_substeps=args.substeps, prior_contact=contact, **sub))))
+            if k in args.models]
     where = "CPU, 1 torch thread" if dev.type == "cpu" else f"{torch.cuda.get_device_name(dev)}, torch {torch.__version__}"
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, {where}")
     print(f"{'model':52s}{'step':>10s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>12s}{'compile s':>11s}")
-    for label, build in (builds[k] for k in args.models):
+    for _, label, build in builds:
         for mode in args.modes:
             r = compiled_cost(build().to(dev), te, mode, batched=args.batch)
             print(f"{label:52s}{r['compiled']:>10s}{r['single']['ms_per_frame']:>10.3f}"
