@@ -245,7 +245,9 @@ class DriveSet:
     corner_obj : [K] that object, corner_friction : [K] the sliding friction of the corner's geom (against
     a surface MuJoCo takes the larger of the two); rims : [Q, 7] each colliding cylinder's two rims, centre
     [3] and axis [3] in its body frame and radius, rim_obj : [Q], rim_friction : [Q]; none of these
-    without surfaces. unseen : what the forward dynamics
+    without surfaces. contact_soft : for each surface, [C_s, 7] the ``solref`` and ``solimp`` of each of its
+    contact candidates in :func:`contacts`'s order (the corners, and against a plane the rims' support points);
+    invweight : [S] each object's translational ``body_invweight0`` (both for ``contact = "soft"``). unseen : what the forward dynamics
     leaves out of a scene, one line each (colliding geoms it has no contact for, joint limits it cannot
     hold, damping, springs, friction loss), so that a user of the rigid tree or of MDGS's "dynamics"
     prior is told.
@@ -440,8 +442,9 @@ def drives_of(mj_model, node_body: np.ndarray, node_centroid: np.ndarray) -> Dri
     if out.surfaces and (corners or rims):  # each candidate's solref, solimp against each surface (contacts's order)
         out.invweight = np.array([float(m.body_invweight0[int(b), 0]) for b in bodies])
         off_rim = ~np.asarray(out.on_rim, bool)
-        for sf, gs in zip(out.surfaces, surface_geom):
-            gc = [g for g, keep in zip(corner_geom, off_rim if sf.kind == "plane" else np.ones(len(corner_geom), bool))
+        for sf, gs in zip(out.surfaces, surface_geom, strict=True):
+            gc = [g for g, keep in zip(corner_geom, off_rim if sf.kind == "plane" else np.ones(len(corner_geom), bool),
+                                       strict=True)
                   if keep]
             if sf.kind == "plane":
                 gc += [g for g in rim_geom for _ in range(RIM_SUPPORT)]
@@ -697,7 +700,7 @@ class Contacts(NamedTuple):
     normal (negative inside); held : [B, C] within ``CONTACT_GAP`` of the surface or reaching it within
     ``dt``; slide : [B, C] moving along the surface faster than friction could stop it within ``dt``
     (``|u_t| > mu |g| dt``); obj : [C] the corner's object; mu : [C] the pair's friction (the larger of
-    the two geoms', as MuJoCo's).
+    the two geoms', as MuJoCo's); soft : [C, 7] the pair's ``solref`` and ``solimp`` (:func:`_contact_param`).
     """
 
     P: torch.Tensor

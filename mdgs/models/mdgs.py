@@ -33,9 +33,9 @@ import torch
 from mdgs.actuation import (
     DriveSet,
     actuation_forces,
+    check_contact,
     coupled_motor_accelerations,
     drives_of,
-    check_contact,
     gyroscopic_weight,
     motor_accelerations,
     push_out,
