@@ -245,7 +245,7 @@ class DriveSet:
     corner_obj : [K] that object, corner_friction : [K] the sliding friction of the corner's geom (against
     a surface MuJoCo takes the larger of the two); rims : [Q, 7] each colliding cylinder's two rims, centre
     [3] and axis [3] in its body frame and radius, rim_obj : [Q], rim_friction : [Q]; none of these
-    without surfaces. contact_soft : for each surface, [C_s, 7] the ``solref`` and ``solimp`` of each of its
+    without surfaces. contact_soft : for each surface, [C, 7] the ``solref`` and ``solimp`` of each of its
     contact candidates in :func:`contacts`'s order (the corners, and against a plane the rims' support points);
     invweight : [S] each object's translational ``body_invweight0`` (both for ``contact = "soft"``). unseen : what the forward dynamics
     leaves out of a scene, one line each (colliding geoms it has no contact for, joint limits it cannot
