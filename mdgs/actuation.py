@@ -78,7 +78,8 @@ CONTACT_COMPLIANCE = 1e-6
 #: Held candidates not yet touching (a gap up to the frame's travel): False, the studies' rule, stops the
 #: point's approach over the frame (its end velocity zero); True ("speculative"), lets it arrive on the
 #: surface at the frame's end under the trapezoidal step where the gap is more than half the frame's
-#: travel (benchmarks/mdgs_probes/speculative_contact.py; not a default: see its output).
+#: travel (benchmarks/mdgs_probes/speculative_contact.py; not a default: see its output). The rigid rule's only: the
+#: soft contact holds no corner before it touches.
 CONTACT_SPECULATIVE = False
 #: Passes of the active-set search that lets go of corners a surface would pull (and limits that would pull),
 #: lets a sticking corner slide where its hold leaves the friction cone and sticks a sliding one whose
@@ -1279,7 +1280,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             a_soft, R_soft = _soft_contact(ct.gap, (ct.frame @ ct.u.unsqueeze(-1)).squeeze(-1), ct.soft,
                                            drives.const(drives.invweight, dev)[ct.obj], ct.mu, dt)
             r = r + a_soft
-        if CONTACT_SPECULATIVE:  # end the frame on the surface under the trapezoidal step: end velocity
+        if CONTACT_SPECULATIVE and not soft:  # end the frame on the surface under the trapezoidal step: end velocity
             # u_n' = min(0, -2 gap / dt - u_n), so that dt (u_n + u_n') / 2 = -gap where that needs no rebound
             un = (ct.u * ct.frame[:, :, 2]).sum(-1)
             extra = (-2.0 * ct.gap.clamp_min(0.0) / dt - un).clamp_max(0.0) / dt
