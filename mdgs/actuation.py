@@ -85,6 +85,12 @@ CONTACT_SPECULATIVE = False
 #: lets a sticking corner slide where its hold leaves the friction cone and sticks a sliding one whose
 #: friction would turn its slip round within the frame.
 CONTACT_PASSES = 4
+#: Newton iterations at most of the soft contact's solve (:func:`_unilateral_solve`): which of the pyramid's edges
+#: and the limits push, decided again from each solve, until the decision repeats (MuJoCo's Newton solver takes two
+#: or three on the studies' scenes).
+SOFT_CONTACT_PASSES = 8
+#: MuJoCo's smallest friction coefficient (``mjMINMU``): a frictionless pair's pyramid is its normal four times over.
+MIN_FRICTION = 1e-5
 #: Contact models of the forward dynamics (``contact`` of :func:`coupled_motor_accelerations`, of the rigid tree
 #: and of MDGS's "dynamics" prior): "rigid", an inelastic impact that stops a held corner's approach and slip over
 #: the step (the studies' rule before "soft" existed); "soft", MuJoCo's soft contact (:func:`_soft_contact`).
@@ -117,6 +123,15 @@ SURFACE_KINDS = ("plane", "box", "sphere", "capsule", "cylinder")
 #: landing flat on its face with a slight slip was thrown sideways at metres per second once a frame was short
 #: enough to call its corners sliding: the friction of the impact's push had no bound on what it did to the slip).
 FORWARD_DYNAMICS_REVISION = 1
+#: Revision of the soft contact's results (``contact = "soft"``), added on top of ``FORWARD_DYNAMICS_REVISION`` by the
+#: study cells that use it. 0: one normal and two tangent rows per corner (MuJoCo's pyramid only while all four of
+#: its edges push; friction by the rigid rule's active-set passes), holding ``J z``, the point's acceleration less
+#: its centripetal part about its mass centre. 1: the pyramid's four edges as rows of their own that may only push,
+#: in MuJoCo's contact frame, holding MuJoCo's ``J qacc`` (less the chain's velocity-product acceleration, not the
+#: body's own), so a sliding corner and a contact down a chain of joints feel what MuJoCo's do: stepped at MuJoCo's
+#: timestep with its integrator, the tree then reproduces the recorded frames to round-off (the Cubli and the user
+#: scene; docs/mdgs-experiments.md, "MuJoCo's soft contact").
+SOFT_CONTACT_REVISION = 1
 #: How a step of the forward dynamics treats the gyroscopic terms (``gyroscopic`` of
 #: :func:`coupled_motor_accelerations`, of the rigid tree and of MDGS's "dynamics" prior): the weight of the step's
 #: end in them, linearised. "explicit": at the step's start (the studies' rule before it existed); "implicit": at
@@ -142,7 +157,7 @@ def gyroscopic_weight(rule: str) -> float:
         raise ValueError(f"gyroscopic must be one of {', '.join(map(repr, GYROSCOPIC))}, got {rule!r}")
     return GYROSCOPIC[rule]
 
-__all__ = ["FORWARD_DYNAMICS_REVISION", "GYROSCOPIC", "gyroscopic_weight", "CONTACT_MODELS", "check_contact", "Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
+__all__ = ["FORWARD_DYNAMICS_REVISION", "SOFT_CONTACT_REVISION", "GYROSCOPIC", "gyroscopic_weight", "CONTACT_MODELS", "check_contact", "Drive", "DriveSet", "Link", "Surface", "Contacts", "drives_of", "actuation_forces",
            "motor_accelerations", "coupled_motor_accelerations", "contacts", "push_out", "project_velocities", "Pose", "pose_of",
            "warn_unseen"]
 
@@ -852,14 +867,17 @@ def _soft_contact(gap: torch.Tensor, u: torch.Tensor, soft: torch.Tensor, invwei
     """MuJoCo's soft contact for corners at ``gap`` [B, C] (negative inside) moving at ``u`` [B, C, 3] in their
     contact frames (two tangents, the normal), with the pairs' ``soft`` [C, 7] (``solref``, ``solimp``:
     :func:`_contact_param`), the translational ``invweight`` [C] of the moving body (``body_invweight0``) and friction
-    ``mu`` [C]: the reference accelerations [B, C, 3] (``-b u_t`` along the tangents, ``-b u_n - k d gap`` along the
-    normal) and the regularisation [B, C, 3] of the rows. MuJoCo's pyramidal cone has four edges ``J_n +- mu J_t``,
-    each with ``R_e = (1 - d) / d * 2 mu^2 (1 + mu^2) w``; inside the cone (all four pushing) their sum and
-    differences are a normal row with ``R_e / 4`` and two tangent rows with ``R_e / (2 mu^2)``, which is what is
-    returned. The time constant is kept above ``2 dt`` as MuJoCo's ``refsafe`` does for its timestep. Read as the
-    pyramid whatever the MJCF's ``cone`` (an elliptic cone's regularisation differs) and ``condim`` (torsional and
-    rolling friction are not modelled, and ``condim = 1``'s single row would be softer for a frictionless pair):
-    the studies' scenes are pyramidal with ``condim = 3``."""
+    ``mu`` [C]: the reference accelerations [B, C, 4] and the regularisation [B, C, 4] of the four edges of MuJoCo's
+    pyramidal friction cone, ``J_n + mu J_t1``, ``J_n - mu J_t1``, ``J_n + mu J_t2``, ``J_n - mu J_t2`` (MuJoCo's
+    order). Each edge is a unilateral row of its own that may only push: its reference is ``-b u_e - k d gap`` with
+    ``u_e`` the edge's velocity ``u_n +- mu u_t`` (so a corner that slides approaches along one edge faster than along
+    the normal, and the pyramid pushes harder than a normal row would), and its regularisation ``R_e = (1 - d) / d
+    * 2 mu^2 (1 + mu^2) w`` (``mj_makeImpedance`` and ``mj_diagApprox``: ``b = 2 / (d_max tau)``, ``k = 1 / (d_max
+    tau zeta)^2``, ``d`` from ``solimp``'s sigmoid in ``|gap| / width``; ``solref[0] < 0`` gives ``-k, -b``
+    directly). The time constant is kept above ``2 dt`` as MuJoCo's ``refsafe`` does for its timestep. Read as the
+    pyramid whatever the MJCF's ``cone`` (an elliptic cone's rows differ) and ``condim`` (torsional and rolling
+    friction are not modelled, and ``condim = 1``'s single row would be softer for a frictionless pair): the
+    studies' scenes are pyramidal with ``condim = 3``."""
     ref = soft[:, :2]
     dmin, dmax, width, mid, power = (soft[:, 2 + i] for i in range(5))
     tau = torch.where(ref[:, 0] > 0, ref[:, 0].clamp_min(2 * dt), ref[:, 0])
@@ -869,11 +887,52 @@ def _soft_contact(gap: torch.Tensor, u: torch.Tensor, soft: torch.Tensor, invwei
     x = (gap.abs() / width.clamp_min(1e-15)).clamp(0.0, 1.0)
     y = torch.where(x < mid, x ** power / mid ** (power - 1), 1 - (1 - x) ** power / (1 - mid) ** (power - 1))
     d = (dmin + y * (dmax - dmin)).clamp(1e-4, 0.9999)
-    a = torch.cat([-b.unsqueeze(-1) * u[..., :2], (-b * u[..., 2] - k * d * gap).unsqueeze(-1)], -1)
-    base = (1 - d) / d * invweight
-    Rt = (base * (1 + mu ** 2)).unsqueeze(-1)  # R_e / (2 mu^2)
-    Rn = base * mu ** 2 * (1 + mu ** 2) / 2  # R_e / 4 (MuJoCo's pyramid of a frictionless pair: next to none)
-    return a, torch.cat([Rt, Rt, Rn.unsqueeze(-1)], -1).clamp_min(1e-15)
+    mu = mu.clamp_min(MIN_FRICTION)
+    mut = mu.unsqueeze(-1) * u[..., :2]  # [B, C, 2]
+    u_e = u[..., 2:] + torch.stack([mut[..., 0], -mut[..., 0], mut[..., 1], -mut[..., 1]], -1)  # [B, C, 4]
+    a = -b.unsqueeze(-1) * u_e - (k * d * gap).unsqueeze(-1)
+    R = (1 - d) / d * invweight * 2 * mu ** 2 * (1 + mu ** 2)
+    return a, R.unsqueeze(-1).expand_as(a).clamp_min(1e-15)
+
+
+def pyramid_frame(n: torch.Tensor) -> torch.Tensor:
+    """MuJoCo's contact frame [..., 3, 3] (rows: two tangents, then the normal, as :class:`Contacts`) for unit
+    normals ``n`` [..., 3] (``mju_makeFrame``: the first tangent is the world's y axis, or its z axis where ``n`` is
+    within 60 degrees of y, made orthogonal to ``n``; the second ``n x t1``). The pyramid's edges lie along these
+    tangents, so a sliding corner feels MuJoCo's cone only in MuJoCo's frame."""
+    ey = torch.zeros_like(n).index_fill_(-1, torch.tensor([1], device=n.device), 1.0)
+    ez = torch.zeros_like(n).index_fill_(-1, torch.tensor([2], device=n.device), 1.0)
+    y0 = torch.where(n[..., 1:2].abs() < 0.5, ey, ez)
+    t1 = y0 - (n * y0).sum(-1, keepdim=True) * n
+    t1 = t1 / t1.norm(dim=-1, keepdim=True)
+    return torch.stack([t1, torch.linalg.cross(n, t1, dim=-1), n], -2)
+
+
+def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: torch.Tensor, Ju: torch.Tensor,
+                      ru: torch.Tensor, Ru: torch.Tensor, held: torch.Tensor, static: bool) -> torch.Tensor:
+    """The stacked accelerations ``z`` [B, 6S] of ``M z = F + Jm^T l_m + Ju^T l_u`` with the bilateral rows ``Jm z =
+    b0`` ([B, C0, 6S], [B, C0]) and the soft unilateral rows ``Ju`` [B, U, 6S] (references ``ru``, regularisation
+    ``Ru``, [B, U]) of which those ``held`` [B, U] may push: MuJoCo's soft constraints, each row ``J z - R l = a_ref``
+    while it pushes (``J z < a_ref``) and free otherwise, the unique minimum of Gauss's principle plus the rows'
+    quadratic penalties that MuJoCo's solvers find. Found by Newton's method on the rows' states (which rows push,
+    read from the last solve's ``J z - a_ref``), as MuJoCo's Newton solver does without its line search: it stops
+    once the states repeat (``SOFT_CONTACT_PASSES`` at most; compiled, all of them, with a slot for every row)."""
+    B, C0, S6 = Jm.shape[0], Jm.shape[1], M.shape[-1]
+    active = held
+    for _ in range(SOFT_CONTACT_PASSES):
+        sel = _slots(active, static)  # [B, n]
+        on = torch.gather(active, 1, sel).to(M.dtype)
+        Jsel = torch.gather(Ju, 1, sel.unsqueeze(-1).expand(-1, -1, S6)) * on.unsqueeze(-1)
+        Jall = torch.cat([Jm, Jsel], 1)
+        diag = torch.cat([M.new_zeros(B, C0), torch.where(on > 0, -torch.gather(Ru, 1, sel), 1.0)], -1)
+        K = torch.cat([torch.cat([M, Jall.transpose(-1, -2)], -1), torch.cat([Jall, torch.diag_embed(diag)], -1)], 1)
+        sol = _solve(K, torch.cat([F, b0, torch.gather(ru, 1, sel) * on], -1))
+        z = sol[:, :S6]
+        pushes = held & ((Ju @ z.unsqueeze(-1)).squeeze(-1) < ru)
+        if not static and bool((pushes == active).all()):
+            break
+        active = pushes
+    return z
 
 
 def _joint_angles(R: torch.Tensor, t: torch.Tensor, lk: Link, drives: DriveSet) -> torch.Tensor:
@@ -1114,6 +1173,47 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
     return xs, M, ang, J, rhs, rate
 
 
+def _bias_accelerations(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, xs: torch.Tensor, w: torch.Tensor,
+                        drives: DriveSet, S: int, J: list, rhs: list, rate: dict) -> torch.Tensor:
+    """The objects' stacked accelerations ``z0`` [B, 6S] while every joint's generalised acceleration is zero
+    (MuJoCo's ``qacc = 0``: each root's origin unaccelerated and its local angular velocity constant, each hinge,
+    slide and ball turning or sliding at a constant rate), with the twists ``w`` [B, S, 3]: the velocity-product
+    part of the objects' accelerations in MuJoCo's coordinates, its ``cdof_dot qvel``. A soft constraint's row holds
+    ``J qacc``, the point's acceleration less that part, which is ``J (z - z0)`` here (:func:`_tree`'s rows ``J``,
+    ``rhs`` and ``rate`` fix the joints; roots, free children and objects left out of the links move as roots).
+    Where the frame's origin of a root is its mass centre and the contacts are on roots (the Cubli), ``J z0`` is
+    zero; on a chain (rotational-center's disc, two hinges down a free base) it is the chain's Coriolis and
+    centripetal acceleration."""
+    B, dev, f64 = xd.shape[0], xd.device, torch.float64
+    rows, vals = list(J), list(rhs)
+    links = {lk.child: lk for lk in drives.links}
+    fixed = set(int(s) for s in drives.constants()["fixed"])
+    eye = torch.eye(6 * S, dtype=f64, device=dev)
+    zero3 = xd.new_zeros(B, 3)
+    for s in range(S):
+        lk = links.get(s)
+        if s in fixed or (lk is not None and lk.kind == "weld"):
+            continue
+        if lk is None or lk.kind == "free":  # the origin t unaccelerated, the angular velocity constant
+            rows.append(eye[6 * s: 6 * s + 6].expand(B, 6, 6 * S))
+            ws = w[:, s]
+            vals.append(torch.cat([torch.linalg.cross(ws, torch.linalg.cross(ws, xs[:, s] - t[:, s], dim=-1), dim=-1),
+                                   zero3], -1))
+            continue
+        wc, wp = w[:, s], (w[:, lk.parent] if lk.parent >= 0 else zero3)
+        if lk.kind == "hinge":  # qdd = n . (alpha_c - alpha_p) - n . (w_p x (w_c - w_p)) = 0
+            n = _world_of(R, t, lk.parent, lk.axis, drives)[:, 0]
+            rows.append(rate[s])
+            vals.append((n * torch.linalg.cross(wp, wc - wp, dim=-1)).sum(-1, keepdim=True))
+        elif lk.kind == "slide":  # the slide's rate row carries no velocity term (:func:`_tree`)
+            rows.append(rate[s])
+            vals.append(xd.new_zeros(B, 1))
+        else:  # ball: the relative angular velocity constant in the child's frame
+            rows.append(_rows(S, B, xd, s, lk.parent, torch.eye(3, dtype=f64, device=dev).expand(B, 3, 3)))
+            vals.append(torch.linalg.cross(wc, wc - wp, dim=-1))
+    return _solve(torch.cat(rows, 1), torch.cat(vals, -1))
+
+
 def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
                                 seg: torch.Tensor, n_obj: int, v: torch.Tensor | None = None,
                                 mass: torch.Tensor | None = None, dt: float | None = None,
@@ -1255,20 +1355,37 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     # each with three rows [B, k, 3, 6S] (two tangents, the normal), their right-hand sides [B, k, 3],
     # which rows are on [B, k, 3] and whether it is held [B, k]
     cand_J, cand_C, cand_r, cand_on, cand_held, cand_R, cand_mu, cand_ut = [], [], [], [], [], [], [], []
+    soft = dynamic and contact == "soft"
+    uni_J, uni_r, uni_R, uni_held = [], [], [], []  # soft: every row its own unilateral candidate [B, k, ...]
     if dynamic and (len(drives.corner_obj) or len(drives.rim_obj)):
         ct = contacts(R, t, tw, drives, dt)
-        soft = contact == "soft"
-        if soft:  # MuJoCo's contact point: halfway between the corner and its surface
+        if soft:  # MuJoCo's contact point, halfway between the corner and its surface, and MuJoCo's contact frame
             P = ct.P - 0.5 * ct.gap.clamp_max(0.0).unsqueeze(-1) * ct.frame[:, :, 2]
-            ct = ct._replace(P=P, u=tw.vc[:, ct.obj] + torch.linalg.cross(w[:, ct.obj], P - tw.c[:, ct.obj], dim=-1))
+            ct = ct._replace(P=P, u=tw.vc[:, ct.obj] + torch.linalg.cross(w[:, ct.obj], P - tw.c[:, ct.obj], dim=-1),
+                             frame=pyramid_frame(ct.frame[:, :, 2]))
         arm = ct.P - xs[:, ct.obj]  # [B, C, 3]
         Jc = _contact_rows(ct.frame, ct.P, ct.obj, xs, S)  # [B, C, 3, 6S]
+        if soft:  # the pyramid's four edges J_n +- mu J_t, each a row of its own
+            a_e, R_e = _soft_contact(ct.gap, (ct.frame @ ct.u.unsqueeze(-1)).squeeze(-1), ct.soft,
+                                     drives.const(drives.invweight, dev)[ct.obj], ct.mu, dt)
+            mJt = ct.mu.clamp_min(MIN_FRICTION).view(1, -1, 1, 1) * Jc[:, :, :2]
+            Je = (Jc[:, :, 2:] + torch.stack([mJt[:, :, 0], -mJt[:, :, 0], mJt[:, :, 1], -mJt[:, :, 1]], 2)).reshape(
+                B, -1, 6 * S)
+            # MuJoCo's rows hold J qacc = J (z - z0), z0 the accelerations at qacc = 0: J z holds a_ref + J z0
+            if h is not None:  # the bias of the joints' own rows, not of their implicit linearisation
+                _, _, _, J0, rhs0, rate0 = _tree(xd, R, t, T, drives, S, w, None)
+            else:
+                J0, rhs0, rate0 = J, rhs, rate
+            z0 = _bias_accelerations(xd, R, t, xs, w, drives, S, J0, rhs0, rate0)
+            uni_J.append(Je)
+            uni_r.append(a_e.reshape(B, -1) + (Je @ z0.unsqueeze(-1)).squeeze(-1))
+            uni_R.append(R_e.reshape(B, -1))
+            uni_held.append((ct.gap < 0).repeat_interleave(4, dim=1))
+    if dynamic and not soft and (len(drives.corner_obj) or len(drives.rim_obj)):
         wk = w[:, ct.obj]
         # the point's acceleration less its centripetal part about the mass centre, J z, is held at -c - u / dt
-        # (rigid: c the centripetal part, the point's velocity u gone by the step's end) or at the soft
-        # reference (MuJoCo's rows hold J qacc, which is J z for a body whose frame's origin is its mass centre)
-        want = (torch.zeros_like(ct.u) if soft else
-                -torch.linalg.cross(wk, torch.linalg.cross(wk, arm, dim=-1), dim=-1) - ct.u / dt)
+        # (c the centripetal part, the point's velocity u gone by the step's end)
+        want = -torch.linalg.cross(wk, torch.linalg.cross(wk, arm, dim=-1), dim=-1) - ct.u / dt
         ut = (ct.frame[:, :, :2] @ ct.u.unsqueeze(-1)).squeeze(-1)  # [B, C, 2] the slip
         uhat = ut / ut.norm(dim=-1).clamp_min(torch.finfo(f64).tiny).unsqueeze(-1)
         # a sliding corner's normal column carries the friction it feels: -mu |f_n| along its slip
@@ -1276,19 +1393,15 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         cand_J.append(Jc)
         cand_C.append(torch.cat([Jc[:, :, :2], torch.where(ct.slide.unsqueeze(-1), fric, Jc[:, :, 2]).unsqueeze(2)], 2))
         r = (ct.frame @ want.unsqueeze(-1)).squeeze(-1)  # [B, C, 3]
-        if soft:
-            a_soft, R_soft = _soft_contact(ct.gap, (ct.frame @ ct.u.unsqueeze(-1)).squeeze(-1), ct.soft,
-                                           drives.const(drives.invweight, dev)[ct.obj], ct.mu, dt)
-            r = r + a_soft
-        if CONTACT_SPECULATIVE and not soft:  # end the frame on the surface under the trapezoidal step: end velocity
+        if CONTACT_SPECULATIVE:  # end the frame on the surface under the trapezoidal step: end velocity
             # u_n' = min(0, -2 gap / dt - u_n), so that dt (u_n + u_n') / 2 = -gap where that needs no rebound
             un = (ct.u * ct.frame[:, :, 2]).sum(-1)
             extra = (-2.0 * ct.gap.clamp_min(0.0) / dt - un).clamp_max(0.0) / dt
             r = torch.cat([r[..., :2], (r[..., 2] + extra).unsqueeze(-1)], -1)
         cand_r.append(r)
         cand_on.append(torch.stack([~ct.slide, ~ct.slide, torch.ones_like(ct.slide)], -1))
-        cand_held.append(ct.gap < 0 if soft else ct.held)
-        cand_R.append(R_soft if soft else torch.full(ct.held.shape + (3,), CONTACT_COMPLIANCE, dtype=f64, device=dev))
+        cand_held.append(ct.held)
+        cand_R.append(torch.full(ct.held.shape + (3,), CONTACT_COMPLIANCE, dtype=f64, device=dev))
         cand_mu.append(ct.mu)
         cand_ut.append(ut)
     for lk in drives.links if dynamic else ():
@@ -1309,13 +1422,13 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             vel = torch.zeros_like(qd)
         for sign, bound in ((1.0, lk.limit[0]), (-1.0, lk.limit[1])):  # the lower limit pushes q up
             h, hd = sign * (q - bound), sign * qd
-            a_ref, soft = _soft_reference(h, hd, lk)
+            a_ref, R_lim = _soft_reference(h, hd, lk)
             row = xd.new_zeros(B, 1, 3, 6 * S)
             row[:, 0, 2] = sign * rate[c][:, 0]
             r = xd.new_zeros(B, 1, 3)
             r[:, 0, 2] = a_ref + sign * vel
             cR = xd.new_ones(B, 1, 3)
-            cR[:, 0, 2] = soft
+            cR[:, 0, 2] = R_lim
             cand_J.append(row)
             cand_C.append(row)
             cand_r.append(r)
@@ -1324,6 +1437,17 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             cand_held.append(((h < lk.margin) | (h + dt * hd.clamp_max(0.0) < lk.margin)).unsqueeze(1))
             cand_mu.append(torch.full((1,), torch.inf, dtype=f64, device=dev))
             cand_ut.append(xd.new_zeros(B, 1, 2))
+            uni_J.append(row[:, :, 2])
+            uni_r.append(r[:, :, 2])
+            uni_R.append(cR[:, :, 2])
+            uni_held.append(cand_held[-1])
+    if soft and uni_J:  # MuJoCo's soft constraints: the pyramids' edges and the limits, each pushing or free
+        Jm = torch.cat(J, 1) if J else xd.new_zeros(B, 0, 6 * S)
+        b0 = torch.cat(rhs, -1) if rhs else xd.new_zeros(B, 0)
+        z = _unilateral_solve(M, F, Jm, b0, torch.cat(uni_J, 1), torch.cat(uni_r, 1), torch.cat(uni_R, 1),
+                              torch.cat(uni_held, 1), torch.compiler.is_compiling()).view(B, S, 6)
+        acc = z[:, seg, :3] + torch.linalg.cross(z[:, seg, 3:], xd - xs[:, seg], dim=-1)
+        return acc.to(x.dtype)
     contact = len(cand_J) > 0
     if contact:
         Jc, Cc, rc_ = torch.cat(cand_J, 1), torch.cat(cand_C, 1), torch.cat(cand_r, 1)

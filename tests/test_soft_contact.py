@@ -1,13 +1,15 @@
 """MuJoCo's soft contact in the forward dynamics (``contact = "soft"`` of
 :func:`mdgs.actuation.coupled_motor_accelerations`, of the rigid tree and of MDGS's "dynamics" prior).
 
-Checked against MuJoCo itself: a box pressed into the floor, flat or tilted onto an edge, still or moving, has
-MuJoCo's accelerations (``mj_forward`` with the pyramidal cone and the Newton solver run to 1e-14); a box dropped on
-the floor comes to rest at MuJoCo's depth. Tolerances: the accelerations agree to 1e-6 relative (float64 on both
-sides; the only approximation, the pyramid's four edges read as a normal and two tangent rows, is exact while every
-edge pushes, which each case checks in MuJoCo's forces); the resting depth (7 microns) to 1e-4 relative: at rest
-the depth is set by the spring and the regularisation alone, not by the step (MuJoCo steps 0.5 ms, the tree four
-2.5 ms substeps a 10 ms frame), and 0.6 s settles both far below that.
+Checked against MuJoCo itself: a box pressed into the floor, flat or tilted onto an edge, still, moving or sliding,
+has MuJoCo's accelerations (``mj_forward`` with the pyramidal cone and the Newton solver run to 1e-14); a paddle
+hinged to a spinning free base, sliding on the floor, steps as MuJoCo steps it; a box dropped on the floor comes to
+rest at MuJoCo's depth. Tolerances: the accelerations agree to 1e-6 relative (float64 on both sides; both solve the
+same problem, the pyramid's four edges as rows that may only push, MuJoCo's Newton solver to 1e-14); the paddle's
+step of 1e-5 s to 1e-4 m/s^2 read as an acceleration (its position error over h^2: float64 positions near 0.3 m
+resolve about 1e-6 m/s^2 at that step, both integrators are semi-implicit Euler from the same state); the resting
+depth (7 microns) to 1e-4 relative: at rest the depth is set by the spring and the regularisation alone, not by the
+step (MuJoCo steps 0.5 ms, the tree four 2.5 ms substeps a 10 ms frame), and 0.6 s settles both far below that.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import pytest
 import torch
 
 from mdgs.actuation import coupled_motor_accelerations, drives_of
+from mdgs.joints import joints_of
 from mdgs.models import MODELS
 from mdgs.rigid import project, twist
 from mdgs.tree import tree_step
@@ -51,24 +54,29 @@ def _pose(tilt: float, depth: float) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return q, R, np.array([0.0, 0.0, -low - depth])
 
 
-@pytest.mark.parametrize("depth, vz, tilt, wx", [
-    (2e-4, 0.0, 0.0, 0.0),  # resting flat, inside the impedance's width
-    (1e-3, -0.1, 0.0, 0.0),  # sinking flat, at the width
-    (3e-3, 0.02, 0.0, 0.0),  # rising flat, past the width
-    (5e-4, 0.0, 0.3, 0.0),  # on an edge, still
-    (5e-4, -0.05, 0.3, 0.5),  # on an edge, sinking and turning
+@pytest.mark.parametrize("depth, vz, tilt, wx, vx", [
+    (2e-4, 0.0, 0.0, 0.0, 0.0),  # resting flat, inside the impedance's width
+    (1e-3, -0.1, 0.0, 0.0, 0.0),  # sinking flat, at the width
+    (3e-3, 0.02, 0.0, 0.0, 0.0),  # rising flat, past the width
+    (5e-4, 0.0, 0.3, 0.0, 0.0),  # on an edge, still
+    (5e-4, -0.05, 0.3, 0.5, 0.0),  # on an edge, sinking and turning
+    (5e-4, -0.05, 0.0, 0.0, 1.5),  # sliding flat along x: the pyramid's edges against the slip let go
+    (5e-4, -0.3, 0.3, 2.0, 0.8),  # an edge landing while it slides and turns (a tumbling cube's impact)
 ])
-def test_soft_contact_accelerations_are_mujocos_for_a_box_pressed_into_the_floor(depth, vz, tilt, wx):
+def test_soft_contact_accelerations_are_mujocos_for_a_box_pressed_into_the_floor(depth, vz, tilt, wx, vx):
     m = mujoco.MjModel.from_xml_string(BOX)
     d = mujoco.MjData(m)
     q, R, t = _pose(tilt, depth)
     d.qpos[:3], d.qpos[3:7] = t, q
-    d.qvel[2], d.qvel[3] = vz, wx  # a turn about x is about the body's x as well
+    d.qvel[0], d.qvel[2], d.qvel[3] = vx, vz, wx  # a turn about x is about the body's x as well
     mujoco.mj_forward(m, d)
-    assert d.ncon in (2, 4) and d.efc_force.min() > 0  # every edge of every pyramid pushes
+    assert d.ncon in (2, 4) and d.efc_force.min() >= 0
+    # the still and sinking cases keep every edge of every pyramid pushing; a slide lets some go (friction at the
+    # cone's edge), the case a normal row and two tangent rows would get wrong
+    assert (d.efc_force.min() > 0) == (vx == 0)
     ds = drives_of(m, np.ones(8, int), REF)
     x = torch.tensor(REF @ R.T + t)[None]
-    v = torch.tensor(np.array([0.0, 0.0, vz]) + np.cross(R @ np.array([wx, 0.0, 0.0]), REF @ R.T))[None]
+    v = torch.tensor(np.array([vx, 0.0, vz]) + np.cross(R @ np.array([wx, 0.0, 0.0]), REF @ R.T))[None]
     seg, mass = torch.zeros(8, dtype=torch.long), torch.full((8,), 0.25, dtype=torch.float64)
     acc = coupled_motor_accelerations(x, torch.zeros(1, 0), ds, torch.tensor(REF), seg, 1, v=v, mass=mass, dt=0.0025,
                                       contact="soft")
@@ -76,6 +84,66 @@ def test_soft_contact_accelerations_are_mujocos_for_a_box_pressed_into_the_floor
     scale = np.abs(d.qacc).max()
     np.testing.assert_allclose(a[0, 0].numpy(), d.qacc[:3], rtol=1e-6, atol=1e-6 * scale)
     np.testing.assert_allclose(alpha[0, 0].numpy(), R @ d.qacc[3:], rtol=1e-6, atol=1e-6 * scale)
+
+
+CHAIN = """<mujoco model="chain">
+  <option gravity="0 0 -9.81" cone="pyramidal" timestep="1e-5" solver="Newton" tolerance="1e-14" iterations="200"/>
+  <default><geom friction="0.8 0.005 0.0001" solref="0.01 1" solimp="0.95 0.99 0.001"/></default>
+  <worldbody>
+    <geom name="floor" type="plane" size="5 5 0.1"/>
+    <body name="base" pos="0 0 0.3">
+      <freejoint/>
+      <geom type="box" size="0.1 0.05 0.03" mass="3"/>
+      <body name="paddle" pos="0.12 0 0">
+        <joint type="hinge" axis="0 1 0"/>
+        <geom type="box" size="0.02 0.04 0.1" pos="0 0 -0.1" mass="0.5"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_a_paddle_hinged_to_a_spinning_base_steps_as_mujoco_steps_it_while_it_slides_on_the_floor():
+    """A contact on a child of a chain: MuJoCo's rows hold ``J qacc``, the point's acceleration less the chain's
+    Coriolis and centripetal part at ``qacc = 0`` (its ``cdof_dot qvel``), not less the child's own centripetal part
+    about its mass centre; with the base spinning at 4 rad/s and the hinge turning, the two differ by tens of m/s^2
+    at the paddle. One semi-implicit Euler step of 1e-5 s from MuJoCo's state on both sides."""
+    m = mujoco.MjModel.from_xml_string(CHAIN)
+    d = mujoco.MjData(m)
+    q = np.zeros(4)
+    mujoco.mju_axisAngle2Quat(q, np.array([1.0, 0.0, 0.0]), 0.2)
+    d.qpos[3:7], d.qpos[7] = q, 0.3
+    d.qvel[:] = [0.3, 0.1, -0.05, 0.5, -1.0, 4.0, 3.0]  # the base's origin, its local angular velocity, the hinge
+    mujoco.mj_kinematics(m, d)
+    corners = [d.geom_xpos[2] + d.geom_xmat[2].reshape(3, 3) @ (m.geom_size[2] * s) for s in SIGNS]
+    d.qpos[2] += -min(c[2] for c in corners) - 5e-4  # the paddle's lowest corner 0.5 mm deep
+    mujoco.mj_forward(m, d)
+    assert d.ncon >= 1 and {int(m.geom_bodyid[d.contact[i].geom2]) for i in range(d.ncon)} == {2}
+    assert d.efc_force.min() == 0  # it slides: edges of the pyramid let go
+    body = np.repeat([1, 2], 8)
+    ref = np.concatenate([0.5 * m.geom_size[1] * SIGNS, m.geom_pos[2] + 0.5 * m.geom_size[2] * SIGNS])
+
+    def nodes_and_velocities():
+        x = np.stack([d.xpos[b] + d.xmat[b].reshape(3, 3) @ r for b, r in zip(body, ref, strict=True)])
+        vel = np.zeros((3, 6))
+        for b in (1, 2):
+            mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, b, vel[b], 0)
+        # mj_objectVelocity gives a body's velocity at its mass centre, xipos
+        return x, np.stack([vel[b, 3:] + np.cross(vel[b, :3], xi - d.xipos[b]) for b, xi in zip(body, x, strict=True)])
+
+    x, v = nodes_and_velocities()
+    ds = drives_of(m, body, ref)
+    seg = torch.tensor(body - 1)
+    mass = torch.tensor(np.repeat(m.body_mass[1:] / 8, 8))
+    xn, _ = tree_step(torch.tensor(x)[None], torch.tensor(v)[None], torch.zeros(1, 0), ds, torch.tensor(ref), seg, 2,
+                      mass, m.opt.timestep, joints=joints_of(m, body, ref), joint_velocities="coordinates",
+                      contact="soft")
+    mujoco.mj_step(m, d)
+    mujoco.mj_kinematics(m, d)
+    x_mj, _ = nodes_and_velocities()
+    as_acc = np.abs(xn[0].numpy() - x_mj).max() / m.opt.timestep ** 2  # m/s^2
+    assert as_acc < 1e-4
 
 
 def test_the_rigid_contact_stops_the_same_sinking_box_where_the_soft_one_lets_it_spring_back():

@@ -580,6 +580,27 @@ def test_a_forward_dynamics_revision_makes_only_the_cells_that_step_it_stale(mon
     assert dyn[0].spec(study)["revision"] == 1
 
 
+def test_a_soft_contact_revision_makes_only_the_soft_contact_cells_stale(monkeypatch):
+    """Bumping ``mdgs.actuation.SOFT_CONTACT_REVISION`` re-keys the rigid tree with ``contact = "soft"`` and MDGS with
+    ``prior_contact = "soft"``, not the rigid-contact tree, MDGS on it or anything else."""
+    import mdgs.study.runner as study_runner
+    from mdgs.study.runner import Cell
+
+    study = load_study(TINY)
+    sc = study.scenes[0]
+    soft = [Cell("reference", sc, "constant-twist", "soft tree", (("contact", "soft"), ("dynamics", True))),
+            Cell("learned", sc, "mdgs", "mdgs + soft tree", (("actuation", "dynamics"), ("prior_contact", "soft")))]
+    rigid = [Cell("reference", sc, "constant-twist", "rigid tree + joints", (("dynamics", True), ("joints", True))),
+             Cell("learned", sc, "mdgs", "mdgs + dynamics prior", (("actuation", "dynamics"),)), *cells_of(study)]
+    now = study_runner.SOFT_CONTACT_REVISION
+    assert now >= 1
+    assert soft[0].spec(study)["revision"] == study_runner.FORWARD_DYNAMICS_REVISION + now
+    monkeypatch.setattr(study_runner, "SOFT_CONTACT_REVISION", 0)
+    before = {c: c.key(study) for c in soft + rigid}
+    monkeypatch.setattr(study_runner, "SOFT_CONTACT_REVISION", now)
+    assert [c for c in before if c.key(study) != before[c]] == soft
+
+
 def test_sensitivity_lines_of_revision_0_give_way_to_those_measured_on_the_long_set(tmp_path):
     """Sensitivity cells of revision 0 were evaluated on the test set only; a folder holding them beside
     revision-1 lines (test and long sets) tables only the new ones, and the cells' keys changed, so a

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from mdgs.actuation import FORWARD_DYNAMICS_REVISION
+from mdgs.actuation import FORWARD_DYNAMICS_REVISION, SOFT_CONTACT_REVISION
 from mdgs.data.generate import GenerateConfig, generate
 from mdgs.data.io import output_problem
 from mdgs.data.split import SplitData, load_split
@@ -88,6 +88,7 @@ class Cell:
             d["budget"] = {k: v for k, v in asdict(study.budget).items()
                            if not (k == "select" and v == "last") and not (k in ("select_frames", "ema") and not v)}
         revision = MODELS[self.model].revision + (FORWARD_DYNAMICS_REVISION if self.runs_forward_dynamics else 0)
+        revision += SOFT_CONTACT_REVISION if self.runs_soft_contact else 0
         if revision:  # absent for revision 0: keys of cells run before revisions existed hold
             d["revision"] = revision
         if self.kind == "sensitivity":  # revision 1: also on the long set (earlier lines are superseded)
@@ -100,6 +101,13 @@ class Cell:
         rigid-tree references): its revision then counts ``FORWARD_DYNAMICS_REVISION`` too."""
         s = dict(self.settings)
         return s.get("actuation") == "dynamics" or s.get("dynamics") is True
+
+    @property
+    def runs_soft_contact(self) -> bool:
+        """Whether this cell's forward dynamics uses MuJoCo's soft contact (``contact`` of the rigid-tree references,
+        ``prior_contact`` of MDGS): its revision then counts ``SOFT_CONTACT_REVISION`` too."""
+        s = dict(self.settings)
+        return s.get("contact") == "soft" or s.get("prior_contact") == "soft"
 
     def key(self, study: StudyConfig) -> str:
         return hashlib.sha256(json.dumps(self.spec(study), sort_keys=True).encode()).hexdigest()[:16]
