@@ -1282,11 +1282,20 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     gathered into as many slots as its most held).
 
     ``contact = "soft"``: MuJoCo's soft contact instead (:func:`_soft_contact`). A corner is held only inside its
-    surface (``gap < 0``, MuJoCo's rule with no margin), and its rows hold the reference accelerations of the
-    pair's ``solref`` and ``solimp`` (a spring and damper on the depth along the normal, a damper on the slip) with
-    MuJoCo's regularisation, ``J z - R l = a_ref``, instead of stopping the corner within the step; friction is
-    decided as above. With the four substeps of the studies' trees (2.5 ms) the contact's 10 ms time constant is
-    resolved, where one step per frame rang (docs/mdgs-experiments.md, "MuJoCo's soft contact").
+    surface (``gap < 0``, MuJoCo's rule with no margin), at MuJoCo's contact point halfway between the corner and the
+    surface and in MuJoCo's contact frame (:func:`pyramid_frame`), by the four edges of MuJoCo's pyramidal friction
+    cone, ``J_n +- mu J_t``, each a row of its own that may only push: ``J_e z - R_e l_e = a_ref,e + J_e z0`` while
+    it pushes, free otherwise (:func:`_unilateral_solve`, Newton's method on which rows push, with the soft limits
+    below among them), ``a_ref,e`` the reference acceleration of the pair's ``solref`` and ``solimp`` at the edge's
+    velocity and ``R_e`` MuJoCo's regularisation. MuJoCo's rows hold ``J qacc``, the point's acceleration less the
+    part the joints' velocities alone give it (:func:`_bias_accelerations`, ``z0``); ``J z`` is the point's
+    acceleration less its centripetal part about its mass centre, so the difference, zero for a root whose frame's
+    origin is its mass centre, goes to the right-hand side. Friction needs no passes of its own: an edge that would
+    pull lets go, which is how the pyramid slides. Checked against MuJoCo's ``qacc`` (tests/test_soft_contact.py);
+    stepped at MuJoCo's timestep by semi-implicit Euler, the tree reproduces the recorded frames of the Cubli and the
+    user scene to round-off (``benchmarks/mdgs_probes/one_frame.py``). With the four substeps of the studies'
+    trees (2.5 ms) the contact's 10 ms time constant is resolved, where one step per frame rang
+    (docs/mdgs-experiments.md, "MuJoCo's soft contact").
 
     *Range limits* of hinges and slides (``Link.limit``): past a limit, or about to pass it within
     ``dt``, one row holds the joint's acceleration as MuJoCo's soft constraint does, ``J z - R l = a_ref``
@@ -1299,9 +1308,10 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     candidate has a slot and all passes run, so that no shape follows the state: the same multipliers
     (tests/test_dynamics.py), one graph, dearer in batches (benchmarks/compiled_dynamics.py).
 
-    Not modelled: the cone's exact boundary (a corner sticks or slides, each pass deciding from the last
-    pass's forces; ``CONTACT_PASSES`` bounds the search), rolling and torsional friction, with the rigid rule the softness of MuJoCo's contacts (``contact
-    = "soft"`` models it), limits of ball joints, damping, springs and friction loss, and
+    Not modelled: with the rigid rule the cone's exact boundary (a corner sticks or slides, each pass deciding from
+    the last pass's forces; ``CONTACT_PASSES`` bounds the search) and the softness of MuJoCo's contacts (``contact
+    = "soft"`` models both), rolling and torsional friction, limits of ball joints, damping, springs and friction
+    loss, and
     contact between moving bodies or with other geoms: ``drives.unseen`` names what a scene has of these, and the rigid tree and MDGS's
     "dynamics" prior warn with it when bound (:func:`warn_unseen`).
     """
@@ -1380,7 +1390,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             uni_J.append(Je)
             uni_r.append(a_e.reshape(B, -1) + (Je @ z0.unsqueeze(-1)).squeeze(-1))
             uni_R.append(R_e.reshape(B, -1))
-            uni_held.append((ct.gap < 0).repeat_interleave(4, dim=1))
+            uni_held.append((ct.gap < 0).repeat_interleave(4, dim=1))  # MuJoCo: dist < margin - gap (0)
     if dynamic and not soft and (len(drives.corner_obj) or len(drives.rim_obj)):
         wk = w[:, ct.obj]
         # the point's acceleration less its centripetal part about the mass centre, J z, is held at -c - u / dt
@@ -1440,7 +1450,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             uni_J.append(row[:, :, 2])
             uni_r.append(r[:, :, 2])
             uni_R.append(cR[:, :, 2])
-            uni_held.append(cand_held[-1])
+            uni_held.append((h < lk.margin).unsqueeze(1))  # MuJoCo's rule: a limit acts once within its margin
     if soft and uni_J:  # MuJoCo's soft constraints: the pyramids' edges and the limits, each pushing or free
         Jm = torch.cat(J, 1) if J else xd.new_zeros(B, 0, 6 * S)
         b0 = torch.cat(rhs, -1) if rhs else xd.new_zeros(B, 0)

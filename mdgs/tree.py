@@ -229,22 +229,35 @@ def _coordinates_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, driv
         # and a compiled step, which cannot branch on the data, always does, reading the groups an eager step built
         joints.tensors(seg, ref, mass, n_obj, dev)
 
+    def root_point(pose) -> torch.Tensor:
+        """The point [B, S, 3] whose velocity is a root's generalised velocity: under semi-implicit Euler the frame's
+        origin, as MuJoCo's free joint has it (its ``qvel`` the origin's velocity and the angular velocity, the
+        origin moved by the one and the frame turned about it by the other), so that at MuJoCo's timestep the step
+        is MuJoCo's; under Verlet the nodes' mass centre."""
+        return pose.tw.c if trapezoidal else pose.t
+
     def increments(xd: torch.Tensor, vd: torch.Tensor, pose) -> dict:  # h qdd at (xd, vd), generalised
         acc = coupled_motor_accelerations(xd, ctrl, drives, ref, seg, n_obj, v=vd, mass=mass, dt=h,
                                           gyroscopic=gyroscopic, pose=pose, contact=contact)
         dvc, dw = project(acc * h, xd, pose.tw, seg, n_obj, mass)
-        return _joint_rates(pose.R, pose.t, pose.tw.c, dvc, dw, links, drives)
+        du = _joint_rates(pose.R, pose.t, pose.tw.c, dvc, dw, links, drives)
+        if not trapezoidal:  # the origin's acceleration, its centripetal part about the mass centre included
+            off, w = pose.t - pose.tw.c, pose.tw.omega
+            du["vc"] = dvc + torch.linalg.cross(dw, off, dim=-1) + h * torch.linalg.cross(
+                w, torch.linalg.cross(w, off, dim=-1), dim=-1)
+        return du
 
     pose = pose_of(xd, vd, ref, seg, n_obj, mass)
     du = increments(xd, vd, pose)
     for k in range(substeps):
         R, t, tw = pose
-        u = _joint_rates(R, t, tw.c, tw.vc, tw.omega, links, drives)
+        P = root_point(pose)
+        u = _joint_rates(R, t, P, tw.vc + torch.linalg.cross(tw.omega, P - tw.c, dim=-1), tw.omega, links, drives)
         u_end = {key: u[key] + du[key] for key in u}  # semi-implicit Euler's, Verlet's prediction
         u_move = {key: u[key] + 0.5 * du[key] for key in u} if trapezoidal else u_end
-        Rn, tn = _place(R, t, tw.c, u_move, h, links, drives)
+        Rn, tn = _place(R, t, P, u_move, h, links, drives)
         xd = (Rn[:, seg] @ refd.unsqueeze(-1)).squeeze(-1) + tn[:, seg]
-        vd = _node_velocities(Rn, tn, tw.c + h * u_move["vc"], u_end, links, drives, xd, seg)
+        vd = _node_velocities(Rn, tn, P + h * u_move["vc"], u_end, links, drives, xd, seg)
         if pushed_out:
             xp, vp = push_out(xd, vd, drives, ref, seg, n_obj, mass)
             if xp is not xd or vp is not vd:  # the push keeps the joints to first order: put them back
