@@ -128,9 +128,11 @@ FORWARD_DYNAMICS_REVISION = 1
 #: its edges push; friction by the rigid rule's active-set passes), holding ``J z``, the point's acceleration less
 #: its centripetal part about its mass centre. 1: the pyramid's four edges as rows of their own that may only push,
 #: in MuJoCo's contact frame, holding MuJoCo's ``J qacc`` (less the chain's velocity-product acceleration, not the
-#: body's own), so a sliding corner and a contact down a chain of joints feel what MuJoCo's do: stepped at MuJoCo's
-#: timestep with its integrator, the tree then reproduces the recorded frames to round-off (the Cubli and the user
-#: scene; docs/mdgs-experiments.md, "MuJoCo's soft contact").
+#: body's own), so a sliding corner and a contact down a chain of joints feel what MuJoCo's do; range limits held
+#: once past them, as MuJoCo's; under semi-implicit Euler each root stepped at its frame's origin, as MuJoCo's free
+#: joint. Stepped at MuJoCo's timestep with its integrator, the tree then reproduces the recorded frames of the three
+#: study scenes to round-off, but where rotational-center's disc strikes a post (docs/mdgs-experiments.md, "MuJoCo's
+#: soft contact").
 SOFT_CONTACT_REVISION = 1
 #: How a step of the forward dynamics treats the gyroscopic terms (``gyroscopic`` of
 #: :func:`coupled_motor_accelerations`, of the rigid tree and of MDGS's "dynamics" prior): the weight of the step's
@@ -1292,13 +1294,13 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     acceleration less its centripetal part about its mass centre, so the difference, zero for a root whose frame's
     origin is its mass centre, goes to the right-hand side. Friction needs no passes of its own: an edge that would
     pull lets go, which is how the pyramid slides. Checked against MuJoCo's ``qacc`` (tests/test_soft_contact.py);
-    stepped at MuJoCo's timestep by semi-implicit Euler, the tree reproduces the recorded frames of the Cubli and the
-    user scene to round-off (``benchmarks/mdgs_probes/one_frame.py``). With the four substeps of the studies'
+    stepped at MuJoCo's timestep by semi-implicit Euler, the tree reproduces the recorded frames of the study scenes
+    to round-off but where a cylinder strikes a cylinder (``benchmarks/mdgs_probes/one_frame.py``). With the four substeps of the studies'
     trees (2.5 ms) the contact's 10 ms time constant is resolved, where one step per frame rang
     (docs/mdgs-experiments.md, "MuJoCo's soft contact").
 
-    *Range limits* of hinges and slides (``Link.limit``): past a limit, or about to pass it within
-    ``dt``, one row holds the joint's acceleration as MuJoCo's soft constraint does, ``J z - R l = a_ref``
+    *Range limits* of hinges and slides (``Link.limit``): past a limit, or (with the rigid contact) about to pass it
+    within ``dt``, one row holds the joint's acceleration as MuJoCo's soft constraint does, ``J z - R l = a_ref``
     (:func:`_soft_reference`: MuJoCo's reference acceleration and regularisation from the joint's
     ``solref``, ``solimp`` and ``dof_invweight0``), so a joint presses a few hundredths of a radian past
     its range under load as in the data.

@@ -69,10 +69,10 @@ def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: Driv
     ``u' = u + h (a(q, u) + a(q', u + h a)) / 2`` (the end's accelerations taken at the predicted velocities and
     reused as the next substep's start: ``substeps + 1`` solves a frame), which keeps a swinging pendulum's energy
     where the trapezoidal step of the bodies' twists gains it; without, semi-implicit Euler in joint coordinates,
-    MuJoCo's own integrator (docs/mdgs-experiments.md, "Stepping in the joints' coordinates"). Joints that
-    :mod:`mdgs.joints` leaves alone (``joints.skipped``) and free joints make their child a root; ``pushed_out``
-    moves still project the joints after the push (:func:`mdgs.joints.project_joints`), as the push keeps them only
-    to first order."""
+    MuJoCo's own integrator, each root stepped at its frame's origin as MuJoCo's free joint is
+    (docs/mdgs-experiments.md, "Stepping in the joints' coordinates"). Joints that :mod:`mdgs.joints` leaves alone
+    (``joints.skipped``) and free joints make their child a root; ``pushed_out`` moves still project the joints after
+    the push (:func:`mdgs.joints.project_joints`), as the push keeps them only to first order."""
     check_joint_velocities(joint_velocities)
     check_contact(contact, pushed_out)
     if joint_velocities == "coordinates":
