@@ -26,10 +26,17 @@ from mdgs.rigid import project, twist
 from mdgs.tree import tree_step
 
 H = 0.05  # half side of the test box (m)
+
+
+def _options(timestep: float) -> str:
+    """The test scenes' options: MuJoCo's pyramidal cone, its Newton solver run to 1e-14, the studies' contact."""
+    return (f'<option gravity="0 0 -9.81" cone="pyramidal" timestep="{timestep}" solver="Newton" tolerance="1e-14" '
+            'iterations="200"/>\n  <default><geom friction="0.8 0.005 0.0001" solref="0.01 1" solimp="0.95 0.99 0.001"/>'
+            '</default>')
+
+
 BOX = f"""<mujoco model="box">
-  <option gravity="0 0 -9.81" cone="pyramidal" timestep="0.0005" solver="Newton" tolerance="1e-14"
-          iterations="200"/>
-  <default><geom friction="0.8 0.005 0.0001" solref="0.01 1" solimp="0.95 0.99 0.001"/></default>
+  {_options(0.0005)}
   <worldbody>
     <geom name="floor" type="plane" size="5 5 0.1"/>
     <body name="box" pos="0 0 1">
@@ -86,9 +93,8 @@ def test_soft_contact_accelerations_are_mujocos_for_a_box_pressed_into_the_floor
     np.testing.assert_allclose(alpha[0, 0].numpy(), R @ d.qacc[3:], rtol=1e-6, atol=1e-6 * scale)
 
 
-CHAIN = """<mujoco model="chain">
-  <option gravity="0 0 -9.81" cone="pyramidal" timestep="1e-5" solver="Newton" tolerance="1e-14" iterations="200"/>
-  <default><geom friction="0.8 0.005 0.0001" solref="0.01 1" solimp="0.95 0.99 0.001"/></default>
+CHAIN = f"""<mujoco model="chain">
+  {_options(1e-5)}
   <worldbody>
     <geom name="floor" type="plane" size="5 5 0.1"/>
     <body name="base" pos="0 0 0.3">
