@@ -1375,7 +1375,6 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             P = ct.P - 0.5 * ct.gap.clamp_max(0.0).unsqueeze(-1) * ct.frame[:, :, 2]
             ct = ct._replace(P=P, u=tw.vc[:, ct.obj] + torch.linalg.cross(w[:, ct.obj], P - tw.c[:, ct.obj], dim=-1),
                              frame=pyramid_frame(ct.frame[:, :, 2]))
-        arm = ct.P - xs[:, ct.obj]  # [B, C, 3]
         Jc = _contact_rows(ct.frame, ct.P, ct.obj, xs, S)  # [B, C, 3, 6S]
         if soft:  # the pyramid's four edges J_n +- mu J_t, each a row of its own
             a_e, R_e = _soft_contact(ct.gap, (ct.frame @ ct.u.unsqueeze(-1)).squeeze(-1), ct.soft,
@@ -1394,6 +1393,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             uni_R.append(R_e.reshape(B, -1))
             uni_held.append((ct.gap < 0).repeat_interleave(4, dim=1))  # MuJoCo: dist < margin - gap (0)
     if dynamic and not soft and (len(drives.corner_obj) or len(drives.rim_obj)):
+        arm = ct.P - xs[:, ct.obj]  # [B, C, 3]
         wk = w[:, ct.obj]
         # the point's acceleration less its centripetal part about the mass centre, J z, is held at -c - u / dt
         # (c the centripetal part, the point's velocity u gone by the step's end)
