@@ -22,6 +22,7 @@ from mdgs.evaluate.rollout import rollout
 from mdgs.graphs import radius_edges
 from mdgs.models import MODELS, ModelError, batch_of
 from mdgs.models.gns import GNS, GNSConfig, element_spacing, random_walk_noise
+from mdgs.models.references import ConstantTwistConfig
 
 runner = CliRunner()
 SMALL = GNSConfig(latent=16, hidden=16, steps=2, type_embedding=4)
@@ -276,3 +277,80 @@ def test_structure_option_keeps_every_body_rigid_in_rollout(train_split, small):
         got = torch.cdist(snapped.x[:, idx].double(), snapped.x[:, idx].double()).numpy()
         np.testing.assert_allclose(got, np.broadcast_to(want, got.shape), rtol=0, atol=1e-5)  # float32 nodes
     assert (plain.x - snapped.x).abs().max() > 0  # the untrained model's step is not rigid by itself
+
+
+# --- the tree prior (prior = "tree"): GNS's acceleration corrects the rigid tree instead of x^t + u^t ---------------
+TREE = dict(prior="tree", prior_substeps=2)
+
+
+@pytest.fixture(scope="module")
+def tree_model(train_split):
+    torch.manual_seed(0)
+    return GNS.from_data(train_split, replace(SMALL, **TREE))
+
+
+def test_tree_prior_with_zero_acceleration_steps_as_the_rigid_tree_reference(data, tree_model):
+    # the independent side is the "rigid tree" reference (mdgs.models.references.ConstantTwist), set as the prior
+    d = load_split(data / "test.h5")
+    m = GNS(tree_model.config)
+    m.load_state_dict(tree_model.state_dict())
+    m.bind(d)
+    with torch.no_grad():
+        for p in m.decoder[-1].parameters():
+            p.zero_()
+        m.acc_mean.zero_()
+    ref = MODELS["constant-twist"](ConstantTwistConfig(dynamics=True, joints=True, substeps=2, trapezoidal=True,
+                                                      joint_velocities="coordinates", contact="soft"))
+    ref.bind(d)
+    tr = np.arange(d.x.shape[0])
+    a, b = m.initial_state(d, tr, 5), ref.initial_state(d, tr, 5)
+    with torch.no_grad():
+        for f in range(5, 15):
+            c = torch.from_numpy(d.ctrl[tr, f])
+            a, b = m.step(a, c), ref.step(b, c)
+    # the same tree_step call on the same float32 state: equal to the bit, velocities included (the next
+    # frame's tree starts from them)
+    assert torch.equal(a.x, b.x) and torch.equal(a.v, b.v)
+    moved = (a.x - torch.from_numpy(d.x[:, 5]))[:, d.moving].abs().max()
+    assert moved > 1e-3  # ten frames of a tumbling scene: the check compares states that moved
+    # and it differs from GNS's own constant-velocity guess
+    plain = GNS(replace(m.config, prior="none"))
+    plain.load_state_dict(m.state_dict())
+    plain.bind(d)
+    st = plain.initial_state(d, tr, 5)
+    with torch.no_grad():
+        assert (plain.step(st, torch.from_numpy(d.ctrl[tr, 5])).x - m.step(st, torch.from_numpy(d.ctrl[tr, 5])).x
+                ).abs().max() > 1e-6
+
+
+def test_tree_prior_statistics_are_the_residual_of_the_tree(train_split, tree_model):
+    # acc stats: the tree's residual x^{t+1} - x_p, noise folded in; recomputed here from the tree by hand
+    b = batch_of(train_split, train_split.pairs(5), "cpu", 5)
+    xp, _ = tree_model._tree(b.x, b.v, b.ctrl)
+    r = (b.x_next - xp)[:, train_split.moving].double().reshape(-1, 3)
+    want = torch.sqrt(r.var(0, correction=0) + tree_model.config.noise_std ** 2).float()
+    torch.testing.assert_close(tree_model.acc_std, want, rtol=1e-4, atol=0)
+    plain = GNS.from_data(train_split, SMALL)
+    assert (plain.acc_std > 2 * tree_model.acc_std).all()  # the tree leaves far less to learn than x^t + u^t
+
+
+def test_tree_prior_noisy_velocity_is_the_noisy_last_position_difference(train_split, tree_model):
+    b = _batch(train_split, tree_model, n=8)
+    nb = tree_model.perturb(b, torch.Generator().manual_seed(3))
+    dn_last = (nb.x - nb.x_past[:, -1]) - (b.x - b.x_past[:, -1])  # n^t - n^{t-1}
+    torch.testing.assert_close(nb.v - b.v, dn_last / tree_model.config.dt, rtol=0, atol=1e-3)  # ~1e-7 m / 0.01 s
+    assert (nb.v - b.v)[:, train_split.moving].abs().max() > 1e-2  # noise of ~3e-4 m per frame, 0.03 m/s
+    xs = torch.cat([nb.x_past, nb.x[:, None]], 1)
+    tree = tree_model._tree(nb.x, nb.v, nb.ctrl)
+    landed = tree_model.integrate(xs, tree_model.target(xs, nb.x_next, tree), tree)
+    torch.testing.assert_close(landed[:, train_split.moving], nb.x_next[:, train_split.moving], rtol=0, atol=1e-6)
+
+
+def test_tree_prior_settings_are_checked():
+    for bad, says in ((dict(prior="mujoco"), "prior must be one of 'none', 'tree'"),
+                      (dict(prior_substeps=0), "prior_substeps must be a positive integer"),
+                      (dict(prior_contact="sticky"), "contact must be one of"),
+                      (dict(prior_joint_velocities="free"), "joint_velocities must be one of"),
+                      (dict(prior_trapezoidal="yes"), "prior_trapezoidal must be true or false")):
+        with pytest.raises(ValueError, match=says):
+            GNSConfig(**bad)

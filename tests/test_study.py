@@ -558,8 +558,8 @@ def test_a_model_revision_makes_its_cells_stale_and_no_others(monkeypatch):
 
 
 def test_a_forward_dynamics_revision_makes_only_the_cells_that_step_it_stale(monkeypatch):
-    """Bumping ``mdgs.actuation.FORWARD_DYNAMICS_REVISION`` re-keys MDGS on the "dynamics" prior and the
-    rigid-tree references, and nothing else (plain MDGS, constant twist, MuJoCo keep their keys); at
+    """Bumping ``mdgs.actuation.FORWARD_DYNAMICS_REVISION`` re-keys MDGS on the "dynamics" prior, GNS on the tree
+    prior and the rigid-tree references, and nothing else (plain MDGS, constant twist, MuJoCo keep their keys); at
     revision 0 the keys are those of cells run before the revision existed (no ``revision`` for a
     reference)."""
     import mdgs.study.runner as study_runner
@@ -568,8 +568,10 @@ def test_a_forward_dynamics_revision_makes_only_the_cells_that_step_it_stale(mon
     study = load_study(TINY)
     sc = study.scenes[0]
     dyn = [Cell("reference", sc, "constant-twist", "rigid tree + joints", (("dynamics", True), ("joints", True))),
-           Cell("learned", sc, "mdgs", "mdgs + dynamics prior", (("actuation", "dynamics"),))]
-    other = [Cell("learned", sc, "mdgs", "mdgs + motor prior", (("actuation", "prior"),)), *cells_of(study)]
+           Cell("learned", sc, "mdgs", "mdgs + dynamics prior", (("actuation", "dynamics"),)),
+           Cell("learned", sc, "gns", "gns + tree prior", (("prior", "tree"),))]
+    other = [Cell("learned", sc, "mdgs", "mdgs + motor prior", (("actuation", "prior"),)),
+             Cell("learned", sc, "gns", "gns, no noise", (("noise_std", 0.0),)), *cells_of(study)]
     now = study_runner.FORWARD_DYNAMICS_REVISION
     assert dyn[0].spec(study)["revision"] == now >= 1
     monkeypatch.setattr(study_runner, "FORWARD_DYNAMICS_REVISION", 0)
@@ -582,16 +584,20 @@ def test_a_forward_dynamics_revision_makes_only_the_cells_that_step_it_stale(mon
 
 def test_a_soft_contact_revision_makes_only_the_soft_contact_cells_stale(monkeypatch):
     """Bumping ``mdgs.actuation.SOFT_CONTACT_REVISION`` re-keys the rigid tree with ``contact = "soft"`` and MDGS with
-    ``prior_contact = "soft"``, not the rigid-contact tree, MDGS on it or anything else."""
+    ``prior_contact = "soft"``, GNS on the tree prior (whose contact is soft unless set), not the rigid-contact tree,
+    MDGS or GNS on it, plain GNS (whose unused ``prior_contact`` defaults to "soft") or anything else."""
     import mdgs.study.runner as study_runner
     from mdgs.study.runner import Cell
 
     study = load_study(TINY)
     sc = study.scenes[0]
     soft = [Cell("reference", sc, "constant-twist", "soft tree", (("contact", "soft"), ("dynamics", True))),
-            Cell("learned", sc, "mdgs", "mdgs + soft tree", (("actuation", "dynamics"), ("prior_contact", "soft")))]
+            Cell("learned", sc, "mdgs", "mdgs + soft tree", (("actuation", "dynamics"), ("prior_contact", "soft"))),
+            Cell("learned", sc, "gns", "gns + soft tree", (("prior", "tree"),))]
     rigid = [Cell("reference", sc, "constant-twist", "rigid tree + joints", (("dynamics", True), ("joints", True))),
-             Cell("learned", sc, "mdgs", "mdgs + dynamics prior", (("actuation", "dynamics"),)), *cells_of(study)]
+             Cell("learned", sc, "mdgs", "mdgs + dynamics prior", (("actuation", "dynamics"),)),
+             Cell("learned", sc, "gns", "gns + rigid tree", (("prior", "tree"), ("prior_contact", "rigid"))),
+             Cell("learned", sc, "gns", "gns", ()), *cells_of(study)]
     now = study_runner.SOFT_CONTACT_REVISION
     assert now >= 1
     assert soft[0].spec(study)["revision"] == study_runner.FORWARD_DYNAMICS_REVISION + now

@@ -23,6 +23,18 @@ sigma^2)``, ``s_a = sqrt(std(a)^2 + sigma^2)`` from the training split only; Ada
 learning rate decaying exponentially from the trainer's ``lr`` (GNS: 1e-4) to 1e-6 by 0.1 per
 5e6 steps, stepped after every optimiser step.
 
+With ``prior = "tree"`` (not in the original; a comparison row for MDGS's "dynamics" prior, which no peer had)
+GNS corrects the scene's rigid tree instead of its constant-velocity guess: where the original moves every node by
+``x^t + u^t`` and adds the decoded acceleration, the tree's state after the frame ``(x_p, v_p)``
+(:func:`mdgs.tree.tree_step`, the same call and settings as MDGS's prior) takes that place,
+
+    x^{t+1} = x_p + a,   v^{t+1} = v_p + a / dt                                  (a in m, per frame^2 x 1 frame^2)
+
+so the state carries the recorded node velocities the tree needs (``State.v``), the target is the tree's
+residual ``x^{t+1} - x_p`` and its statistics are the residual's on the training split. GNS's own features,
+network, loss, noise (the noisy last velocity also given to the tree, as ``v + (n^t - n^{t-1}) / dt``) and
+schedule are unchanged, and GNS still reads nothing of what the tree did.
+
 Deviations from the original, and why (also in docs/peers/gns.md):
 
 - Particles are element centroids of rigid bodies, not a dense particle sampling; the node
@@ -66,15 +78,21 @@ import numpy as np
 import torch
 from torch import nn
 
+from mdgs.actuation import DriveSet, check_contact, drives_of, warn_unseen
 from mdgs.data.split import SplitData
 from mdgs.graphs import SceneGraph, radius_edges
-from mdgs.models.base import Batch, ModelError, Simulator, State
+from mdgs.joints import JointSet, joints_of
+from mdgs.models.base import Batch, ModelError, Simulator, State, batch_of
 from mdgs.structure import align_to_reference
+from mdgs.tree import check_joint_velocities, tree_step
 
 __all__ = ["GNSConfig", "GNS", "MLP", "element_spacing", "world_planes", "random_walk_noise"]
 
 #: How the target of a noisy input is corrected (see :meth:`GNS.perturb`).
 NOISE_TARGETS = ("velocity", "position")
+
+#: What GNS's acceleration corrects (module docstring): its own constant-velocity guess, or the rigid tree's state.
+PRIORS = ("none", "tree")
 
 
 @dataclass(frozen=True)
@@ -103,6 +121,15 @@ class GNSConfig:
     lr_decay_steps : optimiser steps of one ``lr_decay`` factor.
     structure : snap each body to its reference shape after every rollout step (the MDGS
         paper's baseline setting; off in the original GNS).
+    prior : "none" (the original: the acceleration corrects ``x^t + u^t``) or "tree" (it corrects the scene's
+        rigid tree after the frame; module docstring). The four settings below are the tree's, as MDGS's
+        ``prior_substeps``, ``trapezoidal``, ``prior_contact`` and ``joint_velocities`` set its prior (the
+        defaults are mdgs-soft-8's MDGS row); the tree always keeps the scene's joints, without push-out and
+        with the gyroscopic terms at each substep's start.
+    prior_substeps : substeps of the tree per frame.
+    prior_trapezoidal : velocity Verlet (with "coordinates") or the mean twist, instead of semi-implicit Euler.
+    prior_contact : the tree's contact model, "soft" (MuJoCo's) or "rigid" (:data:`mdgs.actuation.CONTACT_MODELS`).
+    prior_joint_velocities : how the tree keeps its joints (:data:`mdgs.tree.JOINT_VELOCITIES`).
     n_types : node types (bodies with elements); set from the data.
     n_planes : world planes giving boundary features; set from the data.
     control_dim : actuators; set from the data.
@@ -123,6 +150,11 @@ class GNSConfig:
     lr_decay: float = 0.1
     lr_decay_steps: float = 5e6
     structure: bool = False
+    prior: str = "none"
+    prior_substeps: int = 8
+    prior_trapezoidal: bool = True
+    prior_contact: str = "soft"
+    prior_joint_velocities: str = "coordinates"
     n_types: int = 0
     n_planes: int = 0
     control_dim: int = 0
@@ -141,6 +173,15 @@ class GNSConfig:
                              f"{self.radius!r}, {self.noise_std!r}, {self.radius_factor!r}")
         if not (0 < self.lr_decay <= 1 and self.lr_decay_steps > 0 and self.lr_final >= 0):
             raise ValueError("lr_decay must be in (0, 1], lr_decay_steps > 0 and lr_final >= 0")
+        if self.prior not in PRIORS:
+            raise ValueError(f"prior must be one of {', '.join(map(repr, PRIORS))}, got {self.prior!r}")
+        n = self.prior_substeps
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ValueError(f"prior_substeps must be a positive integer, got {n!r}")
+        if not isinstance(self.prior_trapezoidal, bool):
+            raise ValueError(f"prior_trapezoidal must be true or false, got {self.prior_trapezoidal!r}")
+        check_contact(self.prior_contact)
+        check_joint_velocities(self.prior_joint_velocities)
 
 
 class MLP(nn.Sequential):
@@ -244,6 +285,7 @@ class GNS(Simulator):
         self.register_buffer("ctrl_std", torch.ones(c.control_dim))
         self._scene: SceneGraph | None = None
         self._cache: dict = {}
+        self._drives, self._joints = DriveSet(), JointSet()
 
     # --- construction ------------------------------------------------------------------------
     @classmethod
@@ -265,10 +307,11 @@ class GNS(Simulator):
 
     def fit(self, d: SplitData) -> None:
         """Per-axis mean and std of the moving nodes' velocities and accelerations (per frame) over the
-        training split, the noise folded into the stds; std of each actuator's control."""
+        training split, the noise folded into the stds; std of each actuator's control. With the tree
+        prior the accelerations are its residuals ``x^{t+1} - x_p`` (:meth:`_tree_residuals`)."""
         x = d.x[:, :, d.moving].astype(np.float64)
         u = np.diff(x, axis=1).reshape(-1, 3)
-        a = np.diff(x, n=2, axis=1).reshape(-1, 3)
+        a = np.diff(x, n=2, axis=1).reshape(-1, 3) if self.config.prior == "none" else self._tree_residuals(d)
         s2 = self.config.noise_std ** 2
         f = lambda z: torch.as_tensor(z, dtype=torch.float32)  # noqa: E731
         if len(u):
@@ -280,6 +323,30 @@ class GNS(Simulator):
         if self.config.control_dim:
             sd = d.ctrl.reshape(-1, d.ctrl.shape[-1]).astype(np.float64).std(0)
             self.ctrl_std.copy_(f(np.where(sd > 0, sd, 1.0)))
+
+    def _tree_residuals(self, d: SplitData) -> np.ndarray:
+        """What the decoder must add to the tree prior on every training pair with a full history:
+        ``x^{t+1} - x_p`` of the moving nodes, m (per frame^2 x 1 frame^2), ``[P * N_moving, 3]``."""
+        pairs = d.pairs(self.history)
+        out = []
+        with torch.no_grad():
+            for i in range(0, len(pairs), 256):
+                b = batch_of(d, pairs[i:i + 256], "cpu", self.history)
+                out.append((b.x_next - self._tree(b.x, b.v, b.ctrl)[0])[:, d.moving].double().numpy())
+        return np.concatenate(out).reshape(-1, 3)
+
+    def _tree(self, x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The rigid tree's node positions and velocities ``[B, N, 3]`` after the frame from ``x, v`` (no gradient;
+        static nodes kept, their velocity zero): :func:`mdgs.tree.tree_step` with the ``prior_*`` settings."""
+        c = self.config
+        sc = self._on(x.device)
+        s = sc["scene"]
+        with torch.no_grad():
+            xp, vp = tree_step(x.detach(), v.detach(), ctrl, self._drives, s.ref_shape, s.obj, s.n_obj, s.mass, c.dt,
+                               c.prior_substeps, c.prior_trapezoidal, False, self._joints, "explicit",
+                               c.prior_joint_velocities, c.prior_contact)
+        m = sc["moving"].view(1, -1, 1)
+        return torch.where(m, xp, x.detach()), torch.where(m, vp, torch.zeros_like(vp))
 
     def bind(self, split: SplitData) -> None:
         """Use the scene of ``split``: its bodies (node types), floor planes and control map."""
@@ -296,6 +363,11 @@ class GNS(Simulator):
         self._planes = (torch.as_tensor(pts, dtype=torch.float32), torch.as_tensor(nrm, dtype=torch.float32))
         self._sign = torch.as_tensor(np.asarray(split.control_sign, np.float32))
         self._cache = {}
+        if c.prior == "tree":
+            mj = split.mj_model()
+            self._drives = drives_of(mj, split.static["node_body"], split.static["node_centroid"])
+            self._joints = joints_of(mj, split.static["node_body"], split.static["node_centroid"])
+            warn_unseen(self._drives, "GNS's tree prior")
 
     def _on(self, dev) -> dict:
         """The bound scene's tensors on ``dev`` (cached)."""
@@ -341,15 +413,20 @@ class GNS(Simulator):
         """Normalised -> physical acceleration, m per frame^2."""
         return a_norm * self.acc_std + self.acc_mean
 
-    def target(self, xs: torch.Tensor, x_next: torch.Tensor) -> torch.Tensor:
-        """The normalised acceleration that :meth:`integrate` turns into ``x_next`` from ``xs`` (inverse Euler)."""
-        a = (x_next - xs[:, -1]) - (xs[:, -1] - xs[:, -2])
-        return (a - self.acc_mean) / self.acc_std
+    def guess(self, xs: torch.Tensor, tree: tuple | None = None) -> torch.Tensor:
+        """Where the nodes go with zero acceleration [B, N, 3]: ``x^t + u^t`` (constant velocity), or with the tree
+        prior its positions ``tree[0]`` after the frame (:meth:`_tree`)."""
+        return tree[0] if tree is not None else 2 * xs[:, -1] - xs[:, -2]
 
-    def integrate(self, xs: torch.Tensor, a_norm: torch.Tensor) -> torch.Tensor:
-        """Semi-implicit Euler in frame units: ``u' = (x^t - x^{t-1}) + a``, ``x' = x^t + u'``; static nodes stay."""
+    def target(self, xs: torch.Tensor, x_next: torch.Tensor, tree: tuple | None = None) -> torch.Tensor:
+        """The normalised acceleration that :meth:`integrate` turns into ``x_next`` from ``xs`` (inverse Euler)."""
+        return (x_next - self.guess(xs, tree) - self.acc_mean) / self.acc_std
+
+    def integrate(self, xs: torch.Tensor, a_norm: torch.Tensor, tree: tuple | None = None) -> torch.Tensor:
+        """Semi-implicit Euler in frame units: ``u' = (x^t - x^{t-1}) + a``, ``x' = x^t + u'``, or with the tree
+        prior ``x' = x_p + a``; static nodes stay."""
         x = xs[:, -1]
-        x_next = x + (x - xs[:, -2]) + self.acceleration(a_norm)
+        x_next = self.guess(xs, tree) + self.acceleration(a_norm)
         return torch.where(self._on(x.device)["moving"].view(1, -1, 1), x_next, x)
 
     # --- the Simulator contract ------------------------------------------------------------------
@@ -363,13 +440,19 @@ class GNS(Simulator):
         return State(base.x, base.v, {"x_past": past})
 
     def step(self, state: State, ctrl: torch.Tensor) -> State:
+        """One frame; ``State.v`` is the backward difference, or with the tree prior ``v_p + a / dt`` (the velocity
+        the next frame's tree starts from)."""
         xs = torch.cat([state.extra["x_past"], state.x[:, None]], 1)
-        x_next = self.integrate(xs, self(xs, ctrl))
+        tree = self._tree(state.x, state.v, ctrl) if self.config.prior == "tree" else None
+        x_next = self.integrate(xs, self(xs, ctrl), tree)
         sc = self._on(x_next.device)
+        if tree is not None:
+            v_next = tree[1] + (x_next - tree[0]) / self.config.dt
         if self.config.structure:
             s = sc["scene"]
             x_next = align_to_reference(x_next, s.ref_shape, s.obj, s.n_obj, mask=sc["moving"])
-        v_next = (x_next - state.x) / self.config.dt
+        if tree is None:
+            v_next = (x_next - state.x) / self.config.dt
         return State(x_next, v_next, {"x_past": xs[:, 1:]})
 
     def _positions(self, batch: Batch) -> torch.Tensor:
@@ -380,7 +463,8 @@ class GNS(Simulator):
     def losses(self, batch: Batch) -> dict[str, torch.Tensor]:
         """``mse``: squared error of the normalised acceleration, summed over x, y, z, mean over moving nodes."""
         xs = self._positions(batch)
-        err = ((self(xs, batch.ctrl) - self.target(xs, batch.x_next)) ** 2).sum(-1)  # [B, N]
+        tree = self._tree(batch.x, batch.v, batch.ctrl) if self.config.prior == "tree" else None
+        err = ((self(xs, batch.ctrl) - self.target(xs, batch.x_next, tree)) ** 2).sum(-1)  # [B, N]
         mv = self._on(xs.device)["moving"]
         return {"mse": err[:, mv].mean()}
 
@@ -390,7 +474,8 @@ class GNS(Simulator):
 
         ``noise_target = "velocity"`` (GNS): the target next position is shifted by the last input
         position's noise, so the target acceleration restores the true next velocity
-        ``x^{t+1} - x^t``; ``"position"``: the target stays the true next position.
+        ``x^{t+1} - x^t``; ``"position"``: the target stays the true next position. With the tree prior the
+        velocity the tree reads takes the last input velocity's noise, ``(n^t - n^{t-1}) / dt``.
         """
         c = self.config
         if c.noise_std == 0:
@@ -400,7 +485,8 @@ class GNS(Simulator):
         n = n * self._on(xs.device)["moving"].view(1, 1, -1, 1)
         xs = xs + n
         x_next = batch.x_next + n[:, -1] if c.noise_target == "velocity" else batch.x_next
-        return replace(batch, x=xs[:, -1], x_past=xs[:, :-1], x_next=x_next)
+        v = batch.v + (n[:, -1] - n[:, -2]) / c.dt if c.prior == "tree" else batch.v
+        return replace(batch, x=xs[:, -1], v=v, x_past=xs[:, :-1], x_next=x_next)
 
     def optimizer(self, lr: float):
         """Adam (lr) with ``lr_k = lr_final + (lr - lr_final) * lr_decay^(k / lr_decay_steps)`` after step ``k``

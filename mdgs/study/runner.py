@@ -32,7 +32,7 @@ import time
 import warnings
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from importlib import metadata
 from pathlib import Path
 
@@ -95,19 +95,27 @@ class Cell:
             d["revision"] = SENSITIVITY_REVISION
         return d
 
+    def _setting(self, name: str):
+        """The cell's value of the model setting ``name``: its row's, else the model config's default (None when
+        the model has no such setting)."""
+        s = dict(self.settings)
+        if name in s:
+            return s[name]
+        f = {f.name: f for f in fields(MODELS[self.model].Config)}.get(name)
+        return None if f is None else f.default
+
     @property
     def runs_forward_dynamics(self) -> bool:
         """Whether this cell steps :mod:`mdgs.actuation`'s forward dynamics (MDGS's "dynamics" prior, the
-        rigid-tree references): its revision then counts ``FORWARD_DYNAMICS_REVISION`` too."""
-        s = dict(self.settings)
-        return s.get("actuation") == "dynamics" or s.get("dynamics") is True
+        rigid-tree references, GNS's tree prior): its revision then counts ``FORWARD_DYNAMICS_REVISION`` too."""
+        return (self._setting("actuation") == "dynamics" or self._setting("dynamics") is True
+                or self._setting("prior") == "tree")
 
     @property
     def runs_soft_contact(self) -> bool:
         """Whether this cell's forward dynamics uses MuJoCo's soft contact (``contact`` of the rigid-tree references,
-        ``prior_contact`` of MDGS): its revision then counts ``SOFT_CONTACT_REVISION`` too."""
-        s = dict(self.settings)
-        return s.get("contact") == "soft" or s.get("prior_contact") == "soft"
+        ``prior_contact`` of MDGS and GNS): its revision then counts ``SOFT_CONTACT_REVISION`` too."""
+        return self.runs_forward_dynamics and "soft" in (self._setting("contact"), self._setting("prior_contact"))
 
     def key(self, study: StudyConfig) -> str:
         return hashlib.sha256(json.dumps(self.spec(study), sort_keys=True).encode()).hexdigest()[:16]
