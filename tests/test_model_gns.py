@@ -280,7 +280,7 @@ def test_structure_option_keeps_every_body_rigid_in_rollout(train_split, small):
 
 
 # --- the tree prior (prior = "tree"): GNS's acceleration corrects the rigid tree instead of x^t + u^t ---------------
-TREE = dict(prior="tree", prior_substeps=2)
+TREE = dict(prior="tree", prior_substeps=2, noise_target="position")
 
 
 @pytest.fixture(scope="module")
@@ -337,6 +337,7 @@ def test_tree_prior_statistics_are_the_residual_of_the_tree(train_split, tree_mo
 def test_tree_prior_noisy_velocity_is_the_noisy_last_position_difference(train_split, tree_model):
     b = _batch(train_split, tree_model, n=8)
     nb = tree_model.perturb(b, torch.Generator().manual_seed(3))
+    assert torch.equal(nb.x_next, b.x_next)  # noise_target = "position": the target is the true next position
     dn_last = (nb.x - nb.x_past[:, -1]) - (b.x - b.x_past[:, -1])  # n^t - n^{t-1}
     torch.testing.assert_close(nb.v - b.v, dn_last / tree_model.config.dt, rtol=0, atol=1e-3)  # ~1e-7 m / 0.01 s
     assert (nb.v - b.v)[:, train_split.moving].abs().max() > 1e-2  # noise of ~3e-4 m per frame, 0.03 m/s
@@ -351,6 +352,8 @@ def test_tree_prior_settings_are_checked():
                       (dict(prior_substeps=0), "prior_substeps must be a positive integer"),
                       (dict(prior_contact="sticky"), "contact must be one of"),
                       (dict(prior_joint_velocities="free"), "joint_velocities must be one of"),
-                      (dict(prior_trapezoidal="yes"), "prior_trapezoidal must be true or false")):
+                      (dict(prior_trapezoidal="yes"), "prior_trapezoidal must be true or false"),
+                      (dict(prior="tree"), 'needs noise_target = "position"')):
         with pytest.raises(ValueError, match=says):
             GNSConfig(**bad)
+    GNSConfig(prior="tree", noise_std=0.0)  # without noise the target needs no correction

@@ -30,10 +30,13 @@ GNS corrects the scene's rigid tree instead of its constant-velocity guess: wher
 
     x^{t+1} = x_p + a,   v^{t+1} = v_p + a / dt                                  (a in m, per frame^2 x 1 frame^2)
 
-so the state carries the recorded node velocities the tree needs (``State.v``), the target is the tree's
-residual ``x^{t+1} - x_p`` and its statistics are the residual's on the training split. GNS's own features,
-network, loss, noise (the noisy last velocity also given to the tree, as ``v + (n^t - n^{t-1}) / dt``) and
-schedule are unchanged, and GNS still reads nothing of what the tree did.
+(the velocity changes by the acceleration over the frame, as in GNS's own semi-implicit Euler), so the state carries
+the node velocities the tree needs (``State.v``: recorded at the first frame, then ``v^{t+1}``), the target is the
+tree's residual ``x^{t+1} - x_p`` and its statistics are the residual's on the training split. GNS's own features,
+network, loss, noise and schedule are unchanged, and GNS still reads nothing of what the tree did. The noisy last
+velocity reaches the tree as ``v + (n^t - n^{t-1}) / dt``, and the noise-corrected target must be the true next
+position (``noise_target = "position"``): the tree places each body rigidly, so it carries only the rigid part of
+the input's noise, and the original's target, shifted by every node's noise, would ask GNS to put the rest back.
 
 Deviations from the original, and why (also in docs/peers/gns.md):
 
@@ -182,6 +185,10 @@ class GNSConfig:
             raise ValueError(f"prior_trapezoidal must be true or false, got {self.prior_trapezoidal!r}")
         check_contact(self.prior_contact)
         check_joint_velocities(self.prior_joint_velocities)
+        if self.prior == "tree" and self.noise_std > 0 and self.noise_target != "position":
+            raise ValueError("prior = \"tree\" needs noise_target = \"position\" (or noise_std = 0): the rigid tree "
+                             "carries only the rigid part of each body's input noise to its positions, so the "
+                             "\"velocity\" target, shifted by every node's noise, would train GNS to put the rest back")
 
 
 class MLP(nn.Sequential):
@@ -413,20 +420,21 @@ class GNS(Simulator):
         """Normalised -> physical acceleration, m per frame^2."""
         return a_norm * self.acc_std + self.acc_mean
 
-    def guess(self, xs: torch.Tensor, tree: tuple | None = None) -> torch.Tensor:
-        """Where the nodes go with zero acceleration [B, N, 3]: ``x^t + u^t`` (constant velocity), or with the tree
-        prior its positions ``tree[0]`` after the frame (:meth:`_tree`)."""
-        return tree[0] if tree is not None else 2 * xs[:, -1] - xs[:, -2]
-
     def target(self, xs: torch.Tensor, x_next: torch.Tensor, tree: tuple | None = None) -> torch.Tensor:
-        """The normalised acceleration that :meth:`integrate` turns into ``x_next`` from ``xs`` (inverse Euler)."""
-        return (x_next - self.guess(xs, tree) - self.acc_mean) / self.acc_std
+        """The normalised acceleration that :meth:`integrate` turns into ``x_next`` from ``xs`` (inverse Euler), or
+        with the tree prior ``tree`` (:meth:`_tree`) the tree's residual ``x_next - x_p``."""
+        if tree is not None:
+            a = x_next - tree[0]
+        else:  # differences of neighbouring positions first: exact in float32 (Sterbenz), as GNS computes them
+            a = (x_next - xs[:, -1]) - (xs[:, -1] - xs[:, -2])
+        return (a - self.acc_mean) / self.acc_std
 
     def integrate(self, xs: torch.Tensor, a_norm: torch.Tensor, tree: tuple | None = None) -> torch.Tensor:
         """Semi-implicit Euler in frame units: ``u' = (x^t - x^{t-1}) + a``, ``x' = x^t + u'``, or with the tree
-        prior ``x' = x_p + a``; static nodes stay."""
+        prior ``tree`` ``x' = x_p + a``; static nodes stay."""
         x = xs[:, -1]
-        x_next = self.guess(xs, tree) + self.acceleration(a_norm)
+        a = self.acceleration(a_norm)
+        x_next = tree[0] + a if tree is not None else x + (x - xs[:, -2]) + a
         return torch.where(self._on(x.device)["moving"].view(1, -1, 1), x_next, x)
 
     # --- the Simulator contract ------------------------------------------------------------------
