@@ -18,6 +18,9 @@ in its joint coordinates by velocity Verlet (``studies/mdgs-coordinates.toml``'s
 ``--contact rigid soft`` measures the substepped tree and MDGS with each contact model in turn, side by side in one
 run (soft: MuJoCo's soft contact without push-out, ``studies/mdgs-soft.toml``'s rows).
 
+``--models gns`` adds GNS correcting the same tree (``prior = "tree"``, ``studies/gns-soft-8.toml``'s no-noise row;
+its tree has no push-out, so only with soft contact or one step a frame).
+
 ``--device cuda`` measures on the GPU instead, where ``--modes none cudagraphs`` compares the eager step with
 the step replayed as a CUDA graph (:func:`mdgs.models.compile_step`); ``--models tree`` or ``mdgs`` measures one
 of the two; ``--batch 1`` times (and compiles) one trajectory only.
@@ -43,7 +46,7 @@ def main() -> None:
     ap.add_argument("--device", default="cpu", help="cpu, or cuda")
     ap.add_argument("--modes", nargs="*", default=["none", "inductor"], choices=("none", "inductor", "aot", "cudagraphs"),
                     help="how the step runs: none (eager), inductor (torch.compile), aot (AOTInductor), cudagraphs (CUDA only)")
-    ap.add_argument("--models", nargs="*", default=["tree", "mdgs"], choices=("tree", "mdgs"))
+    ap.add_argument("--models", nargs="*", default=["tree", "mdgs"], choices=("tree", "mdgs", "gns"))
     ap.add_argument("--joint-velocities", default="parent", choices=JOINT_VELOCITIES,
                     help="with --substeps N > 1: how the tree keeps its joints (coordinates: stepped in them, Verlet)")
     ap.add_argument("--contact", nargs="*", default=["rigid"], choices=("rigid", "soft"),
@@ -52,11 +55,13 @@ def main() -> None:
     torch.set_num_threads(1)
     dev = torch.device(args.device)
     tr, te = tiny_splits(args.scene)
-    ct, md = MODELS["constant-twist"], MODELS["mdgs"]
+    ct, md, gn = MODELS["constant-twist"], MODELS["mdgs"], MODELS["gns"]
     if args.joint_velocities != "parent" and args.substeps == 1:
         ap.error("--joint-velocities needs --substeps above 1 (the studies' rows step the tree so)")
     if args.contact != ["rigid"] and args.substeps == 1:
         ap.error("--contact needs --substeps above 1 (the studies' rows step the tree so)")
+    if "gns" in args.models and args.substeps > 1 and "rigid" in args.contact:
+        ap.error("--models gns with --substeps above 1 needs --contact soft (GNS's tree has no push-out)")
     builds = []
     for contact in args.contact:
         sub = {} if args.substeps == 1 else {"push_out": contact == "rigid", "joint_velocities": args.joint_velocities}
@@ -67,7 +72,10 @@ def main() -> None:
             ("tree", f"rigid tree + joints, trap.{tag}", lambda sub=sub, contact=contact: ct.from_data(te, ct.Config(
                 dynamics=True, joints=True, trapezoidal=True, substeps=args.substeps, contact=contact, **sub))),
             ("mdgs", f"mdgs + dynamics prior{tag}", lambda sub=sub, contact=contact: md.from_data(tr, md.Config(
-                actuation="dynamics", trapezoidal=True, prior_substeps=args.substeps, prior_contact=contact, **sub))))
+                actuation="dynamics", trapezoidal=True, prior_substeps=args.substeps, prior_contact=contact, **sub))),
+            ("gns", f"gns + tree prior{tag}", lambda contact=contact: gn.from_data(tr, gn.Config(
+                prior="tree", prior_substeps=args.substeps, prior_trapezoidal=True, prior_contact=contact,
+                prior_joint_velocities=args.joint_velocities, noise_std=0.0))))
             if k in args.models]
     where = "CPU, 1 torch thread" if dev.type == "cpu" else f"{torch.cuda.get_device_name(dev)}, torch {torch.__version__}"
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, {where}")

@@ -190,6 +190,10 @@ DYNAMICS_CONFIGS = {
     # studies/mdgs-substeps.toml's first MDGS row: the prior in 4 substeps with push-out after each
     "dynamics-substeps-push-out": dict(actuation="dynamics", noise="none", trapezoidal=True, loss="relative",
                                        prior_substeps=4, push_out=True, fade=1.0),
+    # studies/mdgs-soft-8.toml's MDGS row: the prior in 8 substeps, MuJoCo's soft contact, joint coordinates
+    "dynamics-soft-8-coordinates": dict(actuation="dynamics", noise="none", trapezoidal=True, loss="relative",
+                                        prior_substeps=8, push_out=False, prior_contact="soft", fade=1.0,
+                                        scales="residual", joint_velocities="coordinates"),
 }
 
 
@@ -223,7 +227,7 @@ def test_mdgs_on_the_dynamics_prior_agrees_between_cpu_and_cuda(which, splits):
     np.testing.assert_allclose(b.pos_mse[:, h + 1:], a.pos_mse[:, h + 1:], rtol=1e-2, atol=1e-12)
 
 
-@pytest.mark.parametrize("which", ["dynamics", "dynamics-substeps-push-out"])
+@pytest.mark.parametrize("which", ["dynamics", "dynamics-substeps-push-out", "dynamics-soft-8-coordinates"])
 def test_mdgs_on_the_dynamics_prior_replays_as_a_cuda_graph_as_the_eager_step(which, splits):
     """The first 20 predicted frames of the replayed step within 1e-3 relative of the eager step's.
 
@@ -244,6 +248,9 @@ def test_mdgs_on_the_dynamics_prior_replays_as_a_cuda_graph_as_the_eager_step(wh
 TREE_CONFIGS = {
     "tree": dict(dynamics=True, joints=True, trapezoidal=True),
     "tree-substeps-push-out": dict(dynamics=True, joints=True, trapezoidal=True, push_out=True, substeps=4),
+    # mdgs-soft-8's prior alone: 8 substeps, soft contact, stepped in joint coordinates
+    "tree-soft-8-coordinates": dict(dynamics=True, joints=True, trapezoidal=True, push_out=False, substeps=8,
+                                    contact="soft", joint_velocities="coordinates"),
 }
 
 
@@ -258,5 +265,37 @@ def test_the_rigid_tree_reference_rolls_out_alike_on_cpu_and_cuda(which, splits)
     short = _short(te, cpu.history + 11)
     a, b = rollout(cpu, short), rollout(gpu, short)
     h = cpu.history
+    assert np.isfinite(a.pos_mse).all() and np.isfinite(b.pos_mse).all()
+    np.testing.assert_allclose(b.pos_mse[:, h + 1:], a.pos_mse[:, h + 1:], rtol=1e-2, atol=1e-12)
+
+
+#: studies/gns-soft-8.toml's two GNS rows: GNS correcting mdgs-soft-8's tree, with its noise and without.
+GNS_TREE_CONFIGS = {
+    "gns-tree-noise": dict(prior="tree", noise_target="position"),
+    "gns-tree-no-noise": dict(prior="tree", noise_std=0.0),
+}
+
+
+@pytest.mark.parametrize("which", list(GNS_TREE_CONFIGS))
+def test_gns_on_the_tree_prior_agrees_between_cpu_and_cuda(which, splits):
+    """GNS's step through the tree (8 soft substeps in joint coordinates) on the GPU: one step, the loss
+    terms on the same (unperturbed) pairs and a 10-frame rollout, to the module docstring's tolerances. The
+    two rows differ in the noise's share of the statistics (``s_u``), not in the step's code."""
+    tr, te = splits
+    torch.manual_seed(0)
+    cls = MODELS["gns"]
+    cpu = cls.from_data(tr, cls.Config(**GNS_TREE_CONFIGS[which])).eval()
+    gpu = copy.deepcopy(cpu).to("cuda").eval()
+    _first_steps_agree(cpu, gpu, te)
+    terms = []
+    for m in (cpu, gpu):
+        m.bind(tr)
+        with torch.no_grad():
+            terms.append(m.losses(batch_of(tr, tr.pairs(m.history)[:16], m.device, m.history)))
+    for k in terms[0]:
+        _close(terms[0][k], terms[1][k], 1e-3, 1e-12)
+    h = cpu.history
+    short = _short(te, h + 11)
+    a, b = rollout(cpu, short), rollout(gpu, short)
     assert np.isfinite(a.pos_mse).all() and np.isfinite(b.pos_mse).all()
     np.testing.assert_allclose(b.pos_mse[:, h + 1:], a.pos_mse[:, h + 1:], rtol=1e-2, atol=1e-12)
