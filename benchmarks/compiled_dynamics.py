@@ -79,12 +79,12 @@ def main() -> None:
             if k in args.models]
     where = "CPU, 1 torch thread" if dev.type == "cpu" else f"{torch.cuda.get_device_name(dev)}, torch {torch.__version__}"
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, {where}")
-    print(f"{'model':52s}{'step':>10s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>12s}{'compile s':>11s}")
+    print(f"{'model':52s}{'step':>10s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>13s}{'compile s':>11s}")
     for _, label, build in builds:
         for mode in args.modes:
             r = compiled_cost(build().to(dev), te, mode, batched=args.batch)
             print(f"{label:52s}{r['compiled']:>10s}{r['single']['ms_per_frame']:>10.3f}"
-                  f"{r['batched']['ms_per_trajectory_frame']:>12.3f}{r['compile_seconds']:>11.0f}"
+                  f"{r['batched']['ms_per_trajectory_frame']:>13.3f}{r['compile_seconds']:>11.0f}"
                   + (f"  ({r['note']})" if r["note"] else ""), flush=True)
     print("step: none = eager, inductor = torch.compile, aot = AOTInductor, cudagraphs = replayed as a CUDA graph; ms/f b1: ms per frame, one "
           "trajectory; ms/tf bN: ms per "

@@ -9,7 +9,9 @@
 #   4. benchmarks/profile_step.py --device cuda: kernels per single-trajectory step and the GPU-busy share, eager
 #      and replayed as CUDA graphs (launches, graph replays and device waits per step; dynamo's graph breaks logged).
 # MDGS on the rigid tree's forward dynamics captures as a CUDA graph, one step a frame and in 4 substeps (docs/results.md,
-# "fourth loan", "fifth loan"; PARTS=tests PYTEST_K=dynamics_prior). Open on the next loan: what the captured step costs.
+# "fourth loan", "fifth loan"; PARTS=tests PYTEST_K=dynamics_prior). The eight-substep soft prior (mdgs-soft-8, gns-soft-8) was
+# measured on the sixth loan with benchmarks/compiled_dynamics.py (docs/results.md, "sixth loan"). Open on the next loan:
+# PYTEST_K="soft-8 and replays" (its CUDA graph against its eager step; compiling takes about 255 s).
 # PARTS picks parts (default "eager compiled tests profile"); all four take more than one 10-minute
 # device call, so run PARTS="eager compiled" and PARTS="tests profile" as two calls.
 # PYTEST_K selects tests (pytest -k). Outputs go to $OUT (default cuda-out/): env.txt, bench_eager.txt,

@@ -15,6 +15,8 @@ on another H200 (2026-11-27, later) the 41 tests before the 4-substep push-out C
 (MDGS on the 4-substep prior with push-out against the CPU included), and so did the rigid tree's
 (one step; 4 substeps with push-out); the replay itself ran past 180 s and was stopped. On one H100
 (2026-11-27, a fifth loan) that replay, run alone, passed in 275 s.
+On one H200 (2026-11-28, a sixth loan) the tests of mdgs-soft-8's MDGS and tree and of GNS on the tree passed
+(the soft-8 replay was not run: its compiling alone takes about 255 s).
 
 Tolerances: both devices compute in float32 with other kernels and summation orders (cuBLAS,
 atomic scatter-adds), so results agree to float32 round-off amplified through a few layers, not
