@@ -97,6 +97,25 @@ def registry_models(names: list[str], tr: SplitData, widths: tuple[int, ...] = (
                 yield name + suffix, str(e)
 
 
+def study_rows(paths: list[str], tr: SplitData, device: torch.device | None = None) -> Iterator[tuple[str, Simulator | str]]:
+    """``(label, model)`` for each ``[[models]]`` row of the study files ``paths`` (its registry name and ``set``),
+    built from ``tr`` (untrained), labelled ``NAME STUDY#K`` (K counting that study's rows from 1). A row that
+    refuses the scene gives its message, as in :func:`registry_models`."""
+    import tomllib
+
+    for path in paths:
+        with open(path, "rb") as f:
+            study = tomllib.load(f)
+        for k, row in enumerate(study.get("models", []), 1):
+            label = f"{row['name']} {study['study']['name']}#{k}"
+            try:
+                cls = MODELS[row["name"]]
+                model = cls.from_data(tr, cls.Config(**row.get("set", {})))
+                yield label, model.to(device) if device is not None and model.compilable else model
+            except Exception as e:  # noqa: BLE001 - a row that refuses the scene says so and the table goes on
+                yield label, str(e)
+
+
 def _col(batch: int) -> int:
     """Width of the ``ms/tf b<batch>`` column: at least two spaces before its label (the docs' table
     reader splits the header on two or more spaces)."""

@@ -2,6 +2,7 @@
 
     python benchmarks/profile_step.py [--scene cubli-triple] [--models mdgs gns ...] [--frames 10] [--repeats 5]
                                       [--compile [inductor|aot|cudagraphs]] [--widths 100 50] [--device cuda]
+                                      [--study studies/mdgs-soft-8.toml ...]
 
 One run, this machine, CPU, one torch thread, batch 1 (one trajectory), untrained weights (the cost
 of a step does not depend on training), on a ``tiny`` dataset of the scene written to a temporary
@@ -28,6 +29,9 @@ arithmetic: tensor creation (empty, zeros, ones, full, eye, arange, tensor/as_te
 views and shape changes (view, reshape, expand, unsqueeze, transpose, select, slice, as_strided,
 contiguous, clone), indexing and data movement (index, index_put, index_select, gather, scatter,
 cat, stack, nonzero, unique, masked_select), error checks (``_linalg_check_errors``), ``item``.
+
+``--study TOML ...`` profiles the ``[[models]]`` rows of those study files, with their settings
+(:func:`bench_models.study_rows`), after the registry's models (none unless ``--models`` names some).
 
 ``--device cuda`` profiles each torch model's step on the GPU instead: kernels run per step, the
 GPU time of those kernels and its share of the wall time (a small share: the step is launch-bound),
@@ -56,10 +60,11 @@ import statistics
 import sys
 import time
 from collections import defaultdict
+from itertools import chain
 
 import numpy as np
 import torch
-from bench_models import registry_models, tiny_splits
+from bench_models import registry_models, study_rows, tiny_splits
 from torch.profiler import ProfilerActivity, profile
 
 from mdgs.evaluate.cost import step_cost
@@ -219,6 +224,11 @@ def profile_model(model, te, frames: int, repeats: int) -> dict:
             "top": sorted(((k, per_step(t)) for k, t in per_op.items()), key=lambda kt: -kt[1])[:8]}
 
 
+def _names(args) -> list[str]:
+    """The registry models to profile: ``--models``, else all of them unless ``--study`` names rows instead."""
+    return args.models if args.models is not None else ([] if args.study else list(MODELS))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scene", default="cubli-triple")
@@ -229,6 +239,8 @@ def main() -> None:
                     help="profile the compiled step: inductor (torch.compile, the default), aot or cudagraphs "
                          "(CUDA only; module docstring)")
     ap.add_argument("--widths", nargs="*", type=int, default=[], help="MDGS also at these hidden widths")
+    ap.add_argument("--study", nargs="*", default=[], metavar="TOML",
+                    help="also the [[models]] rows of these study files, with their settings (e.g. studies/mdgs-soft-8.toml)")
     ap.add_argument("--device", default="cpu", help="cpu, or cuda: kernels per step and GPU-busy share instead "
                                                   "of the op table (MuJoCo is left out there)")
     args = ap.parse_args()
@@ -248,7 +260,7 @@ def main() -> None:
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, batch 1, CPU, 1 torch thread; per step, medians of "
           f"{args.repeats} rollouts of {args.frames} steps" + (f"; compiled steps ({args.compile})" if args.compile else ""))
     print(f"{'model':22s}{'ms/step':>9s}{'prof ms':>9s}{'op ms':>8s}{'arith %':>9s}{'overhead ms':>13s}")
-    for label, model in registry_models(args.models or list(MODELS), tr, tuple(args.widths)):
+    for label, model in chain(registry_models(_names(args), tr, tuple(args.widths)), study_rows(args.study, tr)):
         if isinstance(model, str):
             print(f"{label:22s} refused: {model}")
             continue
@@ -278,14 +290,14 @@ def _main_cuda(args) -> None:
 
     dev = torch.device(args.device)
     tr, te = tiny_splits(args.scene)
-    names = [n for n in (args.models or list(MODELS)) if n != "mujoco"]
+    names = [n for n in _names(args) if n != "mujoco"]
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, batch 1, {torch.cuda.get_device_name(dev)}; per step, medians "
           f"of {args.repeats} rollouts of {args.frames} steps" + (f"; compiled steps ({args.compile})" if args.compile else ""))
     if args.compile:  # dynamo's graph breaks and inductor's reasons for not replaying a CUDA graph, as they happen
         torch._logging.set_logs(graph_breaks=True, perf_hints=True)
     print(f"{'model':22s}{'ms/step':>9s}{'prof ms':>9s}{'kernels':>9s}{'GPU ms':>9s}{'GPU busy %':>12s}"
           f"{'launches':>10s}{'graphs':>8s}{'syncs':>7s}")
-    for label, model in registry_models(names, tr, tuple(args.widths), dev):
+    for label, model in chain(registry_models(names, tr, tuple(args.widths), dev), study_rows(args.study, tr, dev)):
         if isinstance(model, str):
             print(f"{label:22s} refused: {model}")
             continue
