@@ -82,6 +82,24 @@ def test_output_folder_of_another_study_is_refused(tmp_path):
     assert res.exit_code == 2 and "not empty" in res.output
 
 
+def test_threads_option_sets_torch_threads_and_refuses_a_nonpositive_count(tmp_path):
+    """``--threads N`` sets this process's torch threads before the study is read (so two shares on one machine
+    need not oversubscribe it); 0 is one sentence, exit 2, nothing written."""
+    import torch
+
+    before = torch.get_num_threads()
+    try:
+        res = runner.invoke(app, ["study", str(_write(tmp_path, "[study\n")), "--out", str(tmp_path / "o"),
+                                  "--threads", str(before + 1)])
+        assert res.exit_code == 2  # the malformed file, read after the threads were set
+        assert torch.get_num_threads() == before + 1
+    finally:
+        torch.set_num_threads(before)
+    res = runner.invoke(app, ["study", str(_write(tmp_path, GOOD)), "--out", str(tmp_path / "o"), "--threads", "0"])
+    assert res.exit_code == 2 and "--threads 0: give a positive number" in res.output and "Traceback" not in res.output
+    assert not (tmp_path / "o").exists()
+
+
 def test_cells_cover_the_grid_once_and_shares_partition_it():
     study = load_study(TINY)
     cells = cells_of(study)

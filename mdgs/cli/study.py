@@ -25,6 +25,11 @@ def study_cmd(
                                help="Instead of running cells: time every finished row's step again, compiled "
                                     "(aot, inductor) or eager (none), one row after another, into OUT/costs.jsonl "
                                     "(run it on an idle machine); the tables and chart then use these costs."),
+    threads: int = typer.Option(None, "--threads", metavar="N",
+                                help="Torch threads of this process (default: torch's own, one per core). Shares run "
+                                     "side by side on one machine should split its cores, e.g. --threads 1 for each "
+                                     "of two shares on 2 cores: with torch's default they oversubscribe the cores "
+                                     "and train far slower."),
 ) -> None:
     """Run a grid of (scene, model, seed) cells: Tables 1-4, speed-accuracy chart, stability test."""
     from mdgs.data.schema import DatasetError
@@ -52,6 +57,13 @@ def study_cmd(
         fail("--recost times every row one after another (so all are timed alike) and skips the rows "
              "already timed; leave out --cells and --only")
     share = parse_share(cells, "--cells")
+    if threads is not None:
+        if threads < 1:
+            fail(f"--threads {threads}: give a positive number of threads (one per share when shares run side by "
+                 "side on one machine)")
+        import torch
+
+        torch.set_num_threads(threads)
     try:
         study = load_study(study_file)
     except StudyError as e:
