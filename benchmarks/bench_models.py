@@ -98,19 +98,19 @@ def registry_models(names: list[str], tr: SplitData, widths: tuple[int, ...] = (
 
 
 def study_rows(paths: list[str], tr: SplitData, device: torch.device | None = None) -> Iterator[tuple[str, Simulator | str]]:
-    """``(label, model)`` for each ``[[models]]`` row of the study files ``paths`` (its registry name and ``set``),
-    built from ``tr`` (untrained), labelled ``NAME STUDY#K`` (K counting that study's rows from 1). A row that
-    refuses the scene gives its message, as in :func:`registry_models`."""
-    import tomllib
+    """``(label, model)`` for each ``[[models]]`` row of the study files ``paths`` (read and checked by
+    :func:`mdgs.study.load_study`: its registry name and settings), built from ``tr`` (untrained), labelled
+    ``NAME STUDY#K`` (K counting that study's rows from 1). A row that refuses the scene gives its message, as in
+    :func:`registry_models`."""
+    from mdgs.study import load_study
 
     for path in paths:
-        with open(path, "rb") as f:
-            study = tomllib.load(f)
-        for k, row in enumerate(study.get("models", []), 1):
-            label = f"{row['name']} {study['study']['name']}#{k}"
+        study = load_study(path)
+        for k, row in enumerate(study.models, 1):
+            label = f"{row.name} {study.name}#{k}"
             try:
-                cls = MODELS[row["name"]]
-                model = cls.from_data(tr, cls.Config(**row.get("set", {})))
+                cls = MODELS[row.name]
+                model = cls.from_data(tr, cls.Config(**row.settings_dict))
                 yield label, model.to(device) if device is not None and model.compilable else model
             except Exception as e:  # noqa: BLE001 - a row that refuses the scene says so and the table goes on
                 yield label, str(e)
