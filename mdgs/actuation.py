@@ -309,6 +309,17 @@ class DriveSet:
                                         "g": float(np.linalg.norm(self.gravity))}
         return self._cache["constants"]
 
+    def moving_columns(self) -> np.ndarray:
+        """The indices [6 S - 6 k] of the moving objects' entries in the stacked accelerations ``(a_s, alpha_s)``
+        of :func:`coupled_motor_accelerations` (``k`` objects fixed), built once."""
+        key = "moving_columns"
+        if key not in self._cache:
+            cols = np.flatnonzero(np.repeat(~np.asarray(self.fixed, bool), 6))
+            if torch.compiler.is_compiling():  # a dictionary growing under dynamo would compile the step again
+                return cols
+            self._cache[key] = cols
+        return self._cache[key]
+
     def const(self, a: np.ndarray, dev, dtype: torch.dtype = torch.float64) -> torch.Tensor:
         """``torch.as_tensor(a)`` on ``dev``, built once for each of the scene's arrays (a link's axis, a surface's
         frame): a step of the forward dynamics reads dozens of them. Traced (``torch.compile``), no cache: dynamo
@@ -911,25 +922,45 @@ def pyramid_frame(n: torch.Tensor) -> torch.Tensor:
 
 
 def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: torch.Tensor, Ju: torch.Tensor,
-                      ru: torch.Tensor, Ru: torch.Tensor, held: torch.Tensor, static: bool) -> torch.Tensor:
+                      ru: torch.Tensor, Ru: torch.Tensor, held: torch.Tensor, static: bool,
+                      keep: torch.Tensor | None = None) -> torch.Tensor:
     """The stacked accelerations ``z`` [B, 6S] of ``M z = F + Jm^T l_m + Ju^T l_u`` with the bilateral rows ``Jm z =
     b0`` ([B, C0, 6S], [B, C0]) and the soft unilateral rows ``Ju`` [B, U, 6S] (references ``ru``, regularisation
     ``Ru``, [B, U]) of which those ``held`` [B, U] may push: MuJoCo's soft constraints, each row ``J z - R l = a_ref``
     while it pushes (``J z < a_ref``) and free otherwise, the unique minimum of Gauss's principle plus the rows'
     quadratic penalties that MuJoCo's solvers find. Found by Newton's method on the rows' states (which rows push,
     read from the last solve's ``J z - a_ref``), as MuJoCo's Newton solver does without its line search: it stops
-    once the states repeat (``SOFT_CONTACT_PASSES`` at most; compiled, all of them, with a slot for every row)."""
-    B, C0, S6 = Jm.shape[0], Jm.shape[1], M.shape[-1]
+    once the states repeat (``SOFT_CONTACT_PASSES`` at most; compiled, all of them).
+
+    A pushing row's force is ``l = (J z - a_ref) / R``, so the rows leave the system (Schur's complement)::
+
+        [ M + Ju^T W Ju   Jm^T ] [ z   ]   [ F + Ju^T W a_ref ]        W = diag(pushing / R)  [B, U]
+        [ Jm              0    ] [ l_m ] = [ b0               ]
+
+    a system of the tree's size, ``6S + C0``, whatever the number of rows that push or could: the same ``z`` as with
+    the rows kept as unknowns of their own (to round-off, ``tests/test_soft_contact.py``), at a fraction of the cost
+    where a scene has hundreds of contact candidates; compiled, with every row (no shape follows the state), eagerly
+    with the batch's held rows only. ``keep`` [6S - 6k] (int64): the columns of the objects that move, where ``Jm``'s
+    first ``6k`` rows hold the other ``k`` still (the world's elements, :func:`_tree`): those accelerations are zero,
+    so their rows and columns leave the system too."""
+    if keep is not None and keep.shape[0] < M.shape[-1]:
+        r0 = M.shape[-1] - keep.shape[0]
+        z = _unilateral_solve(M[:, keep][:, :, keep], F[:, keep], Jm[:, r0:][:, :, keep], b0[:, r0:], Ju[:, :, keep],
+                              ru, Ru, held, static)
+        return M.new_zeros(M.shape[0], M.shape[-1]).index_copy(1, keep, z)
+    B, C0 = Jm.shape[0], Jm.shape[1]
+    if not static:  # eagerly, only the rows that may push: as many as the batch's most (many candidates, few held)
+        sel = _slots(held, False)  # [B, n]
+        Ju = torch.gather(Ju, 1, sel.unsqueeze(-1).expand(-1, -1, Ju.shape[-1]))
+        ru, Ru, held = torch.gather(ru, 1, sel), torch.gather(Ru, 1, sel), torch.gather(held, 1, sel)
+    JuT = Ju.transpose(-1, -2)  # [B, 6S, U]
+    lower = torch.cat([Jm, M.new_zeros(B, C0, C0)], -1)
     active = held
     for _ in range(SOFT_CONTACT_PASSES):
-        sel = _slots(active, static)  # [B, n]
-        on = torch.gather(active, 1, sel).to(M.dtype)
-        Jsel = torch.gather(Ju, 1, sel.unsqueeze(-1).expand(-1, -1, S6)) * on.unsqueeze(-1)
-        Jall = torch.cat([Jm, Jsel], 1)
-        diag = torch.cat([M.new_zeros(B, C0), torch.where(on > 0, -torch.gather(Ru, 1, sel), 1.0)], -1)
-        K = torch.cat([torch.cat([M, Jall.transpose(-1, -2)], -1), torch.cat([Jall, torch.diag_embed(diag)], -1)], 1)
-        sol = _solve(K, torch.cat([F, b0, torch.gather(ru, 1, sel) * on], -1))
-        z = sol[:, :S6]
+        W = active.to(M.dtype) / Ru  # [B, U]
+        A = M + JuT @ (W.unsqueeze(-1) * Ju)
+        K = torch.cat([torch.cat([A, Jm.transpose(-1, -2)], -1), lower], 1)
+        z = _solve(K, torch.cat([F + (JuT @ (W * ru).unsqueeze(-1)).squeeze(-1), b0], -1))[:, :M.shape[-1]]
         pushes = held & ((Ju @ z.unsqueeze(-1)).squeeze(-1) < ru)
         if not static and bool((pushes == active).all()):
             break
@@ -1457,7 +1488,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         Jm = torch.cat(J, 1) if J else xd.new_zeros(B, 0, 6 * S)
         b0 = torch.cat(rhs, -1) if rhs else xd.new_zeros(B, 0)
         z = _unilateral_solve(M, F, Jm, b0, torch.cat(uni_J, 1), torch.cat(uni_r, 1), torch.cat(uni_R, 1),
-                              torch.cat(uni_held, 1), torch.compiler.is_compiling()).view(B, S, 6)
+                              torch.cat(uni_held, 1), torch.compiler.is_compiling(),
+                              drives.const(drives.moving_columns(), dev, torch.int64)).view(B, S, 6)
         acc = z[:, seg, :3] + torch.linalg.cross(z[:, seg, 3:], xd - xs[:, seg], dim=-1)
         return acc.to(x.dtype)
     contact = len(cand_J) > 0
