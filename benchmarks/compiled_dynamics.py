@@ -11,7 +11,8 @@ one trajectory and per trajectory-frame at ``--batch`` trajectories, eager and c
 (:func:`mdgs.evaluate.cost.compiled_cost`; compile seconds outside the timings), or ahead of time (``--modes none aot``). Compiled, the forward
 dynamics solves with a slot for every contact candidate and runs every pass
 (:func:`mdgs.actuation.coupled_motor_accelerations`), so that its shapes do not follow the state: cheaper
-for one trajectory (no graph breaks), dearer in a batch (larger systems than the eager step's). ``--substeps N`` (N > 1) measures the tree and MDGS
+for one trajectory (no graph breaks), dearer in a batch (larger systems than the eager step's; with the soft contact
+every candidate enters the products, but the solves keep the tree's size). ``--substeps N`` (N > 1) measures the tree and MDGS
 in N substeps with push-out instead (``studies/mdgs-substeps.toml``'s settings), whose compiled graph holds
 every substep's active-set passes: its compiling takes minutes. ``--joint-velocities coordinates`` steps that tree
 in its joint coordinates by velocity Verlet (``studies/mdgs-coordinates.toml``'s rows), one solve a frame more.

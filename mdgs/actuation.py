@@ -1339,7 +1339,9 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     A candidate whose surface or limit would have to pull is let go and the system solved again
     (``CONTACT_PASSES`` passes, an active-set search). Compiled (``torch.compile``, a CUDA graph), every
     candidate has a slot and all passes run, so that no shape follows the state: the same multipliers
-    (tests/test_dynamics.py), one graph, dearer in batches (benchmarks/compiled_dynamics.py).
+    (tests/test_dynamics.py), one graph, dearer in batches (benchmarks/compiled_dynamics.py). The soft contact's rows
+    leave the system instead (:func:`_unilateral_solve`): compiled, every candidate is a row of its products, but each
+    pass solves a system of the tree's size.
 
     Not modelled: with the rigid rule the cone's exact boundary (a corner sticks or slides, each pass deciding from
     the last pass's forces; ``CONTACT_PASSES`` bounds the search) and the softness of MuJoCo's contacts (``contact
