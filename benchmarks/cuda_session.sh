@@ -11,7 +11,10 @@
 # MDGS on the rigid tree's forward dynamics captures as a CUDA graph, one step a frame and in 4 substeps (docs/results.md,
 # "fourth loan", "fifth loan"; PARTS=tests PYTEST_K=dynamics_prior). The eight-substep soft prior (mdgs-soft-8, gns-soft-8) was
 # measured on the sixth loan with benchmarks/compiled_dynamics.py (docs/results.md, "sixth loan"). Open on the next loan:
-# PYTEST_K="soft-8 and replays" (its CUDA graph against its eager step; compiling takes about 255 s).
+# PYTEST_K="soft-8 and replays" (its CUDA graph against its eager step; compiling took about 255 s), and, since the soft
+# contact's rows left the system (docs/results.md, "The soft contact's rows out of the system"), its costs again:
+# python3 benchmarks/compiled_dynamics.py --device cuda --substeps 8 --contact soft --joint-velocities coordinates
+# --models mdgs --modes none cudagraphs --batch 256.
 # PARTS picks parts (default "eager compiled tests profile"); all four take more than one 10-minute
 # device call, so run PARTS="eager compiled" and PARTS="tests profile" as two calls.
 # PYTEST_K selects tests (pytest -k). Outputs go to $OUT (default cuda-out/): env.txt, bench_eager.txt,
