@@ -260,10 +260,11 @@ def test_the_compiled_soft_contact_gives_the_eager_accelerations():
 def test_eliminating_the_soft_rows_gives_the_solution_with_their_forces_as_unknowns(static, fixed):
     """The soft rows' forces ``l = (J z - a_ref) / R`` are eliminated from the system (Schur's complement,
     :func:`mdgs.actuation._unilateral_solve`): on random systems (a positive definite ``M`` of 3 bodies, 9 bilateral
-    rows, 40 unilateral ones of which about half are held, ``R`` from 1e-3 to 10 as in the studies' scenes, 0.0034 to
-    0.14) the accelerations equal those of the full system written here with every held row's force an unknown and the
-    same active-set passes, to 1e-9 relative (float64 solves of sizes 27 and up to 67). With ``fixed`` the first body
-    is held still by the first 6 bilateral rows, as the world's elements are, and leaves the system too."""
+    rows, 40 unilateral ones of which about half are held, ``R`` from 1e-3 to 10: on the study scenes' soft-8 test
+    rollouts no R was below 1e-3) the accelerations equal those of the full system written here with every held row's
+    force an unknown and the same active-set passes, to 1e-9 relative (float64 solves of sizes 27 and up to 67). With
+    ``fixed`` the first body is held still by the first 6 bilateral rows, as the world's elements are, and leaves the
+    system too; ``static`` runs the compiled steps' path (every row in every pass)."""
     from mdgs.actuation import SOFT_CONTACT_PASSES, _unilateral_solve
 
     g = torch.Generator().manual_seed(3)
