@@ -923,7 +923,8 @@ def pyramid_frame(n: torch.Tensor) -> torch.Tensor:
 
 def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: torch.Tensor, Ju: torch.Tensor,
                       ru: torch.Tensor, Ru: torch.Tensor, held: torch.Tensor, static: bool,
-                      keep: torch.Tensor | None = None) -> torch.Tensor:
+                      keep: torch.Tensor | None = None,
+                      start: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """The stacked accelerations ``z`` [B, 6S] of ``M z = F + Jm^T l_m + Ju^T l_u`` with the bilateral rows ``Jm z =
     b0`` ([B, C0, 6S], [B, C0]) and the soft unilateral rows ``Ju`` [B, U, 6S] (references ``ru``, regularisation
     ``Ru``, [B, U]) of which those ``held`` [B, U] may push: MuJoCo's soft constraints, each row ``J z - R l = a_ref``
@@ -942,20 +943,28 @@ def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: to
     where a scene has hundreds of contact candidates; compiled, with every row (no shape follows the state), eagerly
     with the batch's held rows only. ``keep`` [6S - 6k] (int64): the columns of the objects that move, where ``Jm``'s
     first ``6k`` rows hold the other ``k`` still (the world's elements, :func:`_tree`): those accelerations are zero,
-    so their rows and columns leave the system too."""
+    so their rows and columns leave the system too.
+
+    ``start`` [B, U] (bool): the rows that may start pushing (the first pass's states are ``held & start``; all held
+    rows without it), so that a solve starts from the states its predecessor in the step settled on
+    (``warm`` of :func:`coupled_motor_accelerations`). Where the states settle, the accelerations are those of the
+    settled states whatever the start. Returns ``z`` and the states [B, U] the last pass decided (every candidate,
+    held or not)."""
     if keep is not None and keep.shape[0] < M.shape[-1]:
         r0 = M.shape[-1] - keep.shape[0]
-        z = _unilateral_solve(M[:, keep][:, :, keep], F[:, keep], Jm[:, r0:][:, :, keep], b0[:, r0:], Ju[:, :, keep],
-                              ru, Ru, held, static)
-        return M.new_zeros(M.shape[0], M.shape[-1]).index_copy(1, keep, z)
+        z, pushes = _unilateral_solve(M[:, keep][:, :, keep], F[:, keep], Jm[:, r0:][:, :, keep], b0[:, r0:],
+                                      Ju[:, :, keep], ru, Ru, held, static, start=start)
+        return M.new_zeros(M.shape[0], M.shape[-1]).index_copy(1, keep, z), pushes
     B, C0 = Jm.shape[0], Jm.shape[1]
+    active = held if start is None else held & start
+    every = held
     if not static:  # eagerly, only the rows that may push: as many as the batch's most (many candidates, few held)
         sel = _slots(held, False)  # [B, n]
         Ju = torch.gather(Ju, 1, sel.unsqueeze(-1).expand(-1, -1, Ju.shape[-1]))
         ru, Ru, held = torch.gather(ru, 1, sel), torch.gather(Ru, 1, sel), torch.gather(held, 1, sel)
+        active = torch.gather(active, 1, sel)
     JuT = Ju.transpose(-1, -2)  # [B, 6S, U]
     lower = torch.cat([Jm, M.new_zeros(B, C0, C0)], -1)
-    active = held
     for _ in range(SOFT_CONTACT_PASSES):
         W = active.to(M.dtype) / Ru  # [B, U]
         A = M + JuT @ (W.unsqueeze(-1) * Ju)
@@ -965,7 +974,9 @@ def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: to
         if not static and bool((pushes == active).all()):
             break
         active = pushes
-    return z
+    if not static:
+        pushes = torch.zeros_like(every).scatter(1, sel, pushes)
+    return z, pushes
 
 
 def _joint_angles(R: torch.Tensor, t: torch.Tensor, lk: Link, drives: DriveSet) -> torch.Tensor:
@@ -1251,7 +1262,7 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
                                 seg: torch.Tensor, n_obj: int, v: torch.Tensor | None = None,
                                 mass: torch.Tensor | None = None, dt: float | None = None,
                                 gyroscopic: str = "explicit", pose: Pose | None = None,
-                                contact: str = "rigid") -> torch.Tensor:
+                                contact: str = "rigid", warm: dict | None = None) -> torch.Tensor:
     """Node accelerations [B, N, 3] (m/s^2) of the motors with every joint coupled: MuJoCo's ``M^-1 qfrc_actuator``.
 
     Unlike :func:`motor_accelerations` (the driven joint alone, its parent held) the parent recoils and
@@ -1293,7 +1304,10 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     (``benchmarks/mdgs_probes/gyroscopic.py``); the anchors' centripetal terms stay explicit (made
     implicit too, they cost the user scene's cart and pole 130x at t = 110 on the validation split).
     ``pose``: the objects' :class:`Pose` at ``x, v`` (:func:`pose_of`) when the caller has it, so that a
-    stepper that needs the twists itself fits them once (the same numbers as fitted here).
+    stepper that needs the twists itself fits them once (the same numbers as fitted here). ``warm``: a dict that a
+    stepper passes to every solve of one step, in order. With soft contact each solve leaves there the rows it
+    found held but not pushing, and the next starts them free (:func:`_unilateral_solve`'s ``start``): the same
+    accelerations wherever the rows' states settle, found in fewer passes.
 
     *Contact* with the world's colliding geoms (``drives.surfaces``: planes, boxes, spheres, capsules,
     cylinders; :func:`contacts` lists the candidates): every corner of a colliding box of a moving
@@ -1489,9 +1503,15 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     if soft and uni_J:  # MuJoCo's soft constraints: the pyramids' edges and the limits, each pushing or free
         Jm = torch.cat(J, 1) if J else xd.new_zeros(B, 0, 6 * S)
         b0 = torch.cat(rhs, -1) if rhs else xd.new_zeros(B, 0)
-        z = _unilateral_solve(M, F, Jm, b0, torch.cat(uni_J, 1), torch.cat(uni_r, 1), torch.cat(uni_R, 1),
-                              torch.cat(uni_held, 1), torch.compiler.is_compiling(),
-                              drives.const(drives.moving_columns(), dev, torch.int64)).view(B, S, 6)
+        held = torch.cat(uni_held, 1)
+        released = warm.get("released") if warm is not None else None
+        z, pushes = _unilateral_solve(M, F, Jm, b0, torch.cat(uni_J, 1), torch.cat(uni_r, 1), torch.cat(uni_R, 1),
+                                      held, torch.compiler.is_compiling(),
+                                      drives.const(drives.moving_columns(), dev, torch.int64),
+                                      start=None if released is None else ~released)
+        if warm is not None:  # the rows held that did not push: the next solve starts them free
+            warm["released"] = held & ~pushes
+        z = z.view(B, S, 6)
         acc = z[:, seg, :3] + torch.linalg.cross(z[:, seg, 3:], xd - xs[:, seg], dim=-1)
         return acc.to(x.dtype)
     contact = len(cand_J) > 0

@@ -80,12 +80,13 @@ def tree_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, drives: Driv
                                  joints, gyroscopic, contact)
     h = dt / substeps
     pose = None  # the objects' poses and twists at x, v, fitted once per state
+    warm = {}  # each solve starts from the contact rows' states the one before settled on
     for _ in range(substeps):
         if pose is None:
             pose = pose_of(x, v, ref, seg, n_obj, mass)
         tw = pose.tw
         acc = coupled_motor_accelerations(x, ctrl, drives, ref, seg, n_obj, v=v, mass=mass, dt=h, gyroscopic=gyroscopic,
-                                          pose=pose, contact=contact)
+                                          pose=pose, contact=contact, warm=warm)
         dvc, dw = project(acc * h, x, tw, seg, n_obj, mass)
         x, v = advance(x, tw, tw.vc + dvc, tw.omega + dw, h, seg, trapezoidal=trapezoidal)
         pose = None
@@ -236,9 +237,11 @@ def _coordinates_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, driv
         is MuJoCo's; under Verlet the nodes' mass centre."""
         return pose.tw.c if trapezoidal else pose.t
 
+    warm = {}  # each solve starts from the contact rows' states the one before settled on
+
     def increments(xd: torch.Tensor, vd: torch.Tensor, pose) -> dict:  # h qdd at (xd, vd), generalised
         acc = coupled_motor_accelerations(xd, ctrl, drives, ref, seg, n_obj, v=vd, mass=mass, dt=h,
-                                          gyroscopic=gyroscopic, pose=pose, contact=contact)
+                                          gyroscopic=gyroscopic, pose=pose, contact=contact, warm=warm)
         dvc, dw = project(acc * h, xd, pose.tw, seg, n_obj, mass)
         du = _joint_rates(pose.R, pose.t, pose.tw.c, dvc, dw, links, drives)
         if not trapezoidal:  # the origin's acceleration, its centripetal part about the mass centre included

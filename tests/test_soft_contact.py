@@ -301,10 +301,16 @@ def test_eliminating_the_soft_rows_gives_the_solution_with_their_forces_as_unkno
             break
         active = pushes
     assert bool((active != held).any()) and bool(active.any())  # some held rows let go, some push: both cases checked
-    got = _unilateral_solve(M, F, Jm, b0, Ju, ru, Ru, held, static, keep)
+    got, states = _unilateral_solve(M, F, Jm, b0, Ju, ru, Ru, held, static, keep)
     if fixed:
         assert float(z[:, :6].abs().max()) < 1e-12 and bool((got[:, :6] == 0).all())
     np.testing.assert_allclose(got.numpy(), z.numpy(), rtol=0, atol=1e-9 * float(z.abs().max()))
+    assert torch.equal(states, active)  # the states the solve settled on, every candidate's (held or not)
+    # started elsewhere (every held row free, or from the settled states) it settles on the same solution
+    for start in (torch.zeros_like(held), active):
+        again, states = _unilateral_solve(M, F, Jm, b0, Ju, ru, Ru, held, static, keep, start=start)
+        np.testing.assert_allclose(again.numpy(), z.numpy(), rtol=0, atol=1e-9 * float(z.abs().max()))
+        assert torch.equal(states, active)
 
 
 def test_the_soft_contact_tree_is_a_reference_of_mdgs_evaluate_and_is_refused_with_push_out():

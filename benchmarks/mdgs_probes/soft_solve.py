@@ -32,11 +32,12 @@ TREE = dict(dynamics=True, joints=True, trapezoidal=True, substeps=8, contact="s
 eliminated = actuation._unilateral_solve
 
 
-def full(M, F, Jm, b0, Ju, ru, Ru, held, static, keep=None):
-    """The same accelerations from the system with every pushing row's force an unknown (the same active-set passes,
-    stopping once the states repeat); records the largest system solved."""
+def full(M, F, Jm, b0, Ju, ru, Ru, held, static, keep=None, start=None):
+    """The same accelerations from the system with every pushing row's force an unknown (the same active-set passes
+    from the same start, stopping once the states repeat), and the states of its last pass; records the largest
+    system solved."""
     B, C0, S6 = Jm.shape[0], Jm.shape[1], M.shape[-1]
-    active = held
+    active = held if start is None else held & start
     for _ in range(actuation.SOFT_CONTACT_PASSES):
         n = max(int(active.sum(-1).max()), 1)
         sel = torch.argsort((~active).to(torch.int8), dim=-1, stable=True)[:, :n]
@@ -51,19 +52,19 @@ def full(M, F, Jm, b0, Ju, ru, Ru, held, static, keep=None):
         if bool((pushes == active).all()):
             break
         active = pushes
-    return z
+    return z, pushes
 
 
-def both(M, F, Jm, b0, Ju, ru, Ru, held, static, keep=None):
+def both(M, F, Jm, b0, Ju, ru, Ru, held, static, keep=None, start=None):
     """The eliminated solve, compared on the spot with the full one."""
-    z = eliminated(M, F, Jm, b0, Ju, ru, Ru, held, static, keep)
-    ref = full(M, F, Jm, b0, Ju, ru, Ru, held, static)
+    z, pushes = eliminated(M, F, Jm, b0, Ju, ru, Ru, held, static, keep, start=start)
+    ref, _ = full(M, F, Jm, b0, Ju, ru, Ru, held, static, start=start)
     scale = float(ref.abs().max())
     stats["rel"] = max(stats["rel"], float((z - ref).abs().max()) / max(scale, 1e-300))
     stats["calls"] += 1
     k = keep.shape[0] if keep is not None else M.shape[-1]  # the moving objects' columns
     stats["elim_n"] = k + Jm.shape[1] - (M.shape[-1] - k)
-    return z
+    return z, pushes
 
 
 print(f"# python benchmarks/mdgs_probes/soft_solve.py {' '.join(args)}")
