@@ -8,7 +8,8 @@ forward dynamics, trapezoidal, projected onto the joints as every study row of i
 the tiny Cubli's fast flywheel leaves its hinge within ten frames, and a diverging rollout is not a step
 worth timing) and MDGS on that prior (``actuation = "dynamics"``, its joints projected by default), ms per frame for
 one trajectory and per trajectory-frame at ``--batch`` trajectories, eager and compiled with inductor
-(:func:`mdgs.evaluate.cost.compiled_cost`; compile seconds outside the timings), or ahead of time (``--modes none aot``). Compiled, the forward
+(:func:`mdgs.evaluate.cost.compiled_cost`; compile seconds outside the timings), and how far the first test
+trajectory's rollout with the step as timed lies from the eager rollout (``max |dx|``), or ahead of time (``--modes none aot``). Compiled, the forward
 dynamics solves with a slot for every contact candidate and runs every pass
 (:func:`mdgs.actuation.coupled_motor_accelerations`), so that its shapes do not follow the state: cheaper
 for one trajectory (no graph breaks), dearer in a batch (larger systems than the eager step's; with the soft contact
@@ -30,11 +31,14 @@ of the two; ``--batch 1`` times (and compiles) one trajectory only.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
+import numpy as np
 import torch
 from bench_models import tiny_splits
 
 from mdgs.evaluate.cost import compiled_cost
+from mdgs.evaluate.rollout import rollout
 from mdgs.models import MODELS
 from mdgs.tree import JOINT_VELOCITIES
 
@@ -80,16 +84,21 @@ def main() -> None:
             if k in args.models]
     where = "CPU, 1 torch thread" if dev.type == "cpu" else f"{torch.cuda.get_device_name(dev)}, torch {torch.__version__}"
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, {where}")
-    print(f"{'model':52s}{'step':>10s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>13s}{'compile s':>11s}")
+    print(f"{'model':52s}{'step':>10s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>13s}{'compile s':>11s}{'max |dx| m':>12s}")
+    one = dataclasses.replace(te, **{k: getattr(te, k)[:1] for k in ("x", "v", "ctrl", "qpos", "qvel", "act")
+                                     if getattr(te, k) is not None})  # the first test trajectory
     for _, label, build in builds:
         for mode in args.modes:
-            r = compiled_cost(build().to(dev), te, mode, batched=args.batch)
+            model = build().to(dev)
+            eager = rollout(model, one, dev).x
+            r = compiled_cost(model, te, mode, batched=args.batch)
+            dx = float(np.abs(rollout(model, one, dev).x - eager).max())  # the step as timed, one trajectory
             print(f"{label:52s}{r['compiled']:>10s}{r['single']['ms_per_frame']:>10.3f}"
-                  f"{r['batched']['ms_per_trajectory_frame']:>13.3f}{r['compile_seconds']:>11.0f}"
+                  f"{r['batched']['ms_per_trajectory_frame']:>13.3f}{r['compile_seconds']:>11.0f}{dx:>12.2g}"
                   + (f"  ({r['note']})" if r["note"] else ""), flush=True)
     print("step: none = eager, inductor = torch.compile, aot = AOTInductor, cudagraphs = replayed as a CUDA graph; ms/f b1: ms per frame, one "
-          "trajectory; ms/tf bN: ms per "
-          "trajectory-frame at batch N")
+          "trajectory; ms/tf bN: ms per trajectory-frame at batch N; max |dx|: the largest difference of the rollout of "
+          "the first test trajectory with the step as timed from the eager one (float32 positions)")
 
 
 if __name__ == "__main__":

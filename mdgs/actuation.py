@@ -107,6 +107,12 @@ RIM_SUPPORT = 3
 #: ("Pivots given to lu_solve must all be greater or equal to 1"), met on rotational-center's rollouts
 #: (205 unknowns) and reproduced with random well-conditioned matrices (tests/test_dynamics.py).
 BATCHED_SOLVE_MAX = 128
+#: Compiled, the soft contact's passes solve their systems of the tree's degrees of freedom by elimination written as
+#: tensor operations (:func:`_solve_unpivoted`) up to this many unknowns: AOTInductor (torch 2.13) has no C shim for
+#: ``torch.linalg.solve_ex`` and calls it through its proxy executor: the eight passes at 9 unknowns and 96 rows cost
+#: 137 us with it and 44 us with 9 fused elimination steps a pass (``benchmarks/mdgs_probes/small_solve.py``). Its
+#: steps grow with the unknowns, the library's cost barely, and without pivoting it suits only the passes' systems.
+UNPIVOTED_SOLVE_MAX = 16
 #: :func:`push_out` leaves a corner this deep (m) where it is and moves a deeper one back to this depth, by
 #: this fraction of the way per step: 0 and 1 (all the way out at once) were better on the studies' validation
 #: splits than the game engines' slop of about a millimetre and fraction 0.2 (benchmarks/mdgs_probes/push_out.py).
@@ -853,6 +859,22 @@ def _solve(K: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.linalg.solve(K, b)
 
 
+def _solve_unpivoted(K: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """``x`` [B, n] of ``K x = b`` (``K`` [B, n, n], ``b`` [B, n]) by Gauss-Jordan elimination without pivoting, as
+    ``n`` steps of whole-matrix tensor operations that a compiled step fuses (``UNPIVOTED_SOLVE_MAX``). Only for
+    systems whose symmetric part is positive definite and dominates (the soft passes' ``G^T M G + (Ju G)^T W (Ju G)``
+    with the step's small gyroscopic term, :func:`_unilateral_solve`): their pivots stay positive and elimination
+    without pivoting is stable (Golub and Van Loan, Matrix Computations, 4th ed., Sec. 4.2); the library's LU
+    (``tests/test_soft_contact.py``) to round-off."""
+    n = K.shape[-1]
+    Kb = torch.cat([K, b.unsqueeze(-1)], -1)  # [B, n, n + 1]
+    row = torch.arange(n, device=K.device).view(1, n, 1)
+    for k in range(n):
+        pivot = Kb[:, k: k + 1] / Kb[:, k: k + 1, k: k + 1]  # row k, its diagonal entry made one
+        Kb = torch.where(row == k, pivot, Kb - Kb[:, :, k: k + 1] * pivot)
+    return Kb[..., n]
+
+
 def _soft_reference(pos: torch.Tensor, vel: torch.Tensor, lk: Link) -> tuple[torch.Tensor, torch.Tensor]:
     """MuJoCo's soft constraint for a limit at distance ``pos`` [B] (negative past it) closing at ``vel``
     [B]: the reference acceleration ``a_ref = -b vel - k d(pos) pos`` and the regularisation
@@ -921,8 +943,8 @@ def pyramid_frame(n: torch.Tensor) -> torch.Tensor:
     return torch.stack([t1, torch.linalg.cross(n, t1, dim=-1), n], -2)
 
 
-def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: torch.Tensor, Ju: torch.Tensor,
-                      ru: torch.Tensor, Ru: torch.Tensor, held: torch.Tensor, static: bool,
+def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: torch.Tensor, D: torch.Tensor,
+                      Ju: torch.Tensor, ru: torch.Tensor, Ru: torch.Tensor, held: torch.Tensor, static: bool,
                       keep: torch.Tensor | None = None,
                       start: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """The stacked accelerations ``z`` [B, 6S] of ``M z = F + Jm^T l_m + Ju^T l_u`` with the bilateral rows ``Jm z =
@@ -933,17 +955,23 @@ def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: to
     read from the last solve's ``J z - a_ref``), as MuJoCo's Newton solver does without its line search: it stops
     once the states repeat (``SOFT_CONTACT_PASSES`` at most; compiled, all of them).
 
-    A pushing row's force is ``l = (J z - a_ref) / R``, so the rows leave the system (Schur's complement)::
+    A pushing row's force is ``l = W (a_ref - J z)``, ``W = diag(pushing / R)`` [B, U], so the rows leave the system
+    (Schur's complement). The bilateral rows leave it too: with ``D`` [B, n, 6S] rows that complete ``Jm`` to a
+    square, invertible ``P = [Jm; D]`` (:func:`_generalised_rows`, ``n = 6S - C0`` the tree's degrees of freedom),
+    every ``z`` that keeps ``Jm z = b0`` is ``z = G y + zp`` with ``P [G zp] = [[0, b0]; [I, 0]]`` (one factorisation
+    of ``P`` a call), and ``G^T`` times the equations of motion leaves Gauss's principle in the ``n`` coordinates
+    ``y``::
 
-        [ M + Ju^T W Ju   Jm^T ] [ z   ]   [ F + Ju^T W a_ref ]        W = diag(pushing / R)  [B, U]
-        [ Jm              0    ] [ l_m ] = [ b0               ]
+        (G^T M G + (Ju G)^T W (Ju G)) y = G^T (F - M zp) + (Ju G)^T W (a_ref - Ju zp)
 
-    a system of the tree's size, ``6S + C0``, whatever the number of rows that push or could: the same ``z`` as with
-    the rows kept as unknowns of their own (to round-off, ``tests/test_soft_contact.py``), at a fraction of the cost
-    where a scene has hundreds of contact candidates; compiled, with every row (no shape follows the state), eagerly
-    with the batch's held rows only. ``keep`` [6S - 6k] (int64): the columns of the objects that move, where ``Jm``'s
-    first ``6k`` rows hold the other ``k`` still (the world's elements, :func:`_tree`): those accelerations are zero,
-    so their rows and columns leave the system too.
+    (``G^T Jm^T = 0``): each pass solves a system of the tree's degrees of freedom (9 on the Cubli, 8 on
+    rotational-center) and multiplies the rows by ``n`` columns instead of ``6S``, whatever the number of rows that
+    push or could; the same ``z`` as with the rows' forces and the joints' as unknowns (to round-off,
+    ``tests/test_soft_contact.py``). Compiled, every row enters (no shape follows the state) and a system of at most
+    ``UNPIVOTED_SOLVE_MAX`` unknowns is solved by fused elimination (:func:`_solve_unpivoted`); eagerly the batch's
+    held rows only, by the library's LU. ``keep`` [6S - 6k] (int64): the columns of the objects that move, where ``Jm``'s first ``6k``
+    rows hold the other ``k`` still (the world's elements, :func:`_tree`): those accelerations are zero, so their rows
+    and columns leave the system first.
 
     ``start`` [B, U] (bool): the rows that may start pushing (the first pass's states are ``held & start``; all held
     rows without it), so that a solve starts from the states its predecessor in the step settled on
@@ -953,30 +981,39 @@ def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: to
     if keep is not None and keep.shape[0] < M.shape[-1]:
         r0 = M.shape[-1] - keep.shape[0]
         z, pushes = _unilateral_solve(M[:, keep][:, :, keep], F[:, keep], Jm[:, r0:][:, :, keep], b0[:, r0:],
-                                      Ju[:, :, keep], ru, Ru, held, static, start=start)
+                                      D[:, :, keep], Ju[:, :, keep], ru, Ru, held, static, start=start)
         return M.new_zeros(M.shape[0], M.shape[-1]).index_copy(1, keep, z), pushes
-    B, C0 = Jm.shape[0], Jm.shape[1]
+    B, C0, n = Jm.shape[0], Jm.shape[1], D.shape[1]
+    # z = G y + zp keeps the bilateral rows: [Jm; D] [G zp] = [[0, b0]; [I, 0]]
+    rhs = torch.cat([torch.cat([M.new_zeros(B, C0, n), b0.unsqueeze(-1)], -1),
+                     torch.cat([torch.eye(n, dtype=M.dtype, device=M.device).expand(B, n, n), M.new_zeros(B, n, 1)],
+                               -1)], 1)
+    X = _solve(torch.cat([Jm, D], 1), rhs)  # [B, 6S, n + 1]
+    G, zp = X[..., :n], X[..., n]
+    GT = G.transpose(-1, -2)
+    Mr = GT @ M @ G  # [B, n, n]
+    fr = (GT @ (F - (M @ zp.unsqueeze(-1)).squeeze(-1)).unsqueeze(-1)).squeeze(-1)  # [B, n]
     active = held if start is None else held & start
     every = held
     if not static:  # eagerly, only the rows that may push: as many as the batch's most (many candidates, few held)
-        sel = _slots(held, False)  # [B, n]
+        sel = _slots(held, False)  # [B, k]
         Ju = torch.gather(Ju, 1, sel.unsqueeze(-1).expand(-1, -1, Ju.shape[-1]))
         ru, Ru, held = torch.gather(ru, 1, sel), torch.gather(Ru, 1, sel), torch.gather(held, 1, sel)
         active = torch.gather(active, 1, sel)
-    JuT = Ju.transpose(-1, -2)  # [B, 6S, U]
-    lower = torch.cat([Jm, M.new_zeros(B, C0, C0)], -1)
+    JG = Ju @ G  # [B, U, n]
+    gap = ru - (Ju @ zp.unsqueeze(-1)).squeeze(-1)  # a_ref - Ju zp [B, U]
+    JGT = JG.transpose(-1, -2)
+    solve = _solve_unpivoted if torch.compiler.is_compiling() and n <= UNPIVOTED_SOLVE_MAX else _solve
     for _ in range(SOFT_CONTACT_PASSES):
         W = active.to(M.dtype) / Ru  # [B, U]
-        A = M + JuT @ (W.unsqueeze(-1) * Ju)
-        K = torch.cat([torch.cat([A, Jm.transpose(-1, -2)], -1), lower], 1)
-        z = _solve(K, torch.cat([F + (JuT @ (W * ru).unsqueeze(-1)).squeeze(-1), b0], -1))[:, :M.shape[-1]]
-        pushes = held & ((Ju @ z.unsqueeze(-1)).squeeze(-1) < ru)
+        y = solve(Mr + JGT @ (W.unsqueeze(-1) * JG), fr + (JGT @ (W * gap).unsqueeze(-1)).squeeze(-1))
+        pushes = held & ((JG @ y.unsqueeze(-1)).squeeze(-1) < gap)
         if not static and bool((pushes == active).all()):
             break
         active = pushes
     if not static:
         pushes = torch.zeros_like(every).scatter(1, sel, pushes)
-    return z, pushes
+    return (G @ y.unsqueeze(-1)).squeeze(-1) + zp, pushes
 
 
 def _joint_angles(R: torch.Tensor, t: torch.Tensor, lk: Link, drives: DriveSet) -> torch.Tensor:
@@ -1217,19 +1254,17 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
     return xs, M, ang, J, rhs, rate
 
 
-def _bias_accelerations(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, xs: torch.Tensor, w: torch.Tensor,
-                        drives: DriveSet, S: int, J: list, rhs: list, rate: dict) -> torch.Tensor:
-    """The objects' stacked accelerations ``z0`` [B, 6S] while every joint's generalised acceleration is zero
-    (MuJoCo's ``qacc = 0``: each root's origin unaccelerated and its local angular velocity constant, each hinge,
-    slide and ball turning or sliding at a constant rate), with the twists ``w`` [B, S, 3]: the velocity-product
-    part of the objects' accelerations in MuJoCo's coordinates, its ``cdof_dot qvel``. A soft constraint's row holds
-    ``J qacc``, the point's acceleration less that part, which is ``J (z - z0)`` here (:func:`_tree`'s rows ``J``,
-    ``rhs`` and ``rate`` fix the joints; roots, free children and objects left out of the links move as roots).
-    Where the frame's origin of a root is its mass centre and the contacts are on roots (the Cubli), ``J z0`` is
-    zero; on a chain (rotational-center's disc, two hinges down a free base) it is the chain's Coriolis and
-    centripetal acceleration."""
+def _generalised_rows(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, xs: torch.Tensor, w: torch.Tensor,
+                      drives: DriveSet, S: int, rate: dict) -> tuple[torch.Tensor, torch.Tensor]:
+    """Rows ``D`` [B, n, 6S] that read the tree's generalised accelerations (MuJoCo's ``qacc``) off the objects'
+    stacked accelerations ``z``, less their velocity terms ``d`` [B, n]: ``D z - d = qacc``. Each root (and each free
+    child, and each object left out of the links) gives six, its origin's acceleration less the centripetal part
+    about its mass centre and its angular acceleration; each hinge and slide one, its rate row (:func:`_tree`'s
+    ``rate``; a hinge's ``qdd = n . (alpha_c - alpha_p) - n . (w_p x (w_c - w_p))``); each ball three, the relative
+    angular acceleration; welds and the world's elements none. Stacked under the joints' rows ``J`` of :func:`_tree`
+    they make a square system: the joints fix ``6S - n`` accelerations, these the other ``n``."""
     B, dev, f64 = xd.shape[0], xd.device, torch.float64
-    rows, vals = list(J), list(rhs)
+    rows, vals = [], []
     links = {lk.child: lk for lk in drives.links}
     fixed = set(int(s) for s in drives.constants()["fixed"])
     eye = torch.eye(6 * S, dtype=f64, device=dev)
@@ -1245,7 +1280,7 @@ def _bias_accelerations(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, xs: 
                                    zero3], -1))
             continue
         wc, wp = w[:, s], (w[:, lk.parent] if lk.parent >= 0 else zero3)
-        if lk.kind == "hinge":  # qdd = n . (alpha_c - alpha_p) - n . (w_p x (w_c - w_p)) = 0
+        if lk.kind == "hinge":  # qdd = n . (alpha_c - alpha_p) - n . (w_p x (w_c - w_p))
             n = _world_of(R, t, lk.parent, lk.axis, drives)[:, 0]
             rows.append(rate[s])
             vals.append((n * torch.linalg.cross(wp, wc - wp, dim=-1)).sum(-1, keepdim=True))
@@ -1255,7 +1290,22 @@ def _bias_accelerations(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, xs: 
         else:  # ball: the relative angular velocity constant in the child's frame
             rows.append(_rows(S, B, xd, s, lk.parent, torch.eye(3, dtype=f64, device=dev).expand(B, 3, 3)))
             vals.append(torch.linalg.cross(wc, wc - wp, dim=-1))
-    return _solve(torch.cat(rows, 1), torch.cat(vals, -1))
+    if not rows:
+        return xd.new_zeros(B, 0, 6 * S), xd.new_zeros(B, 0)
+    return torch.cat(rows, 1), torch.cat(vals, -1)
+
+
+def _bias_accelerations(J: list, rhs: list, D: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+    """The objects' stacked accelerations ``z0`` [B, 6S] while every joint's generalised acceleration is zero
+    (MuJoCo's ``qacc = 0``: each root's origin unaccelerated and its local angular velocity constant, each hinge,
+    slide and ball turning or sliding at a constant rate): the velocity-product part of the objects' accelerations in
+    MuJoCo's coordinates, its ``cdof_dot qvel``, from :func:`_tree`'s joint rows ``J`` and right-hand sides ``rhs``
+    (without the step's linearisation) and :func:`_generalised_rows`' ``D z = d``. A soft constraint's row holds
+    ``J qacc``, the point's acceleration less that part, which is ``J (z - z0)`` here. Where the frame's origin of a
+    root is its mass centre and the contacts are on roots (the Cubli), ``J z0`` is zero; on a chain
+    (rotational-center's disc, two hinges down a free base) it is the chain's Coriolis and centripetal
+    acceleration."""
+    return _solve(torch.cat([*J, D], 1), torch.cat([*rhs, d], -1))
 
 
 def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: DriveSet, ref: torch.Tensor,
@@ -1354,8 +1404,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     (``CONTACT_PASSES`` passes, an active-set search). Compiled (``torch.compile``, a CUDA graph), every
     candidate has a slot and all passes run, so that no shape follows the state: the same multipliers
     (tests/test_dynamics.py), one graph, dearer in batches (benchmarks/compiled_dynamics.py). The soft contact's rows
-    leave the system instead (:func:`_unilateral_solve`): compiled, every candidate is a row of its products, but each
-    pass solves a system of the tree's size.
+    leave the system instead, and so do the joints' (:func:`_unilateral_solve`): compiled, every candidate is a row
+    of its products, but each pass solves a system of the tree's degrees of freedom.
 
     Not modelled: with the rigid rule the cone's exact boundary (a corner sticks or slides, each pass deciding from
     the last pass's forces; ``CONTACT_PASSES`` bounds the search) and the softness of MuJoCo's contacts (``contact
@@ -1430,11 +1480,12 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             Je = (Jc[:, :, 2:] + torch.stack([mJt[:, :, 0], -mJt[:, :, 0], mJt[:, :, 1], -mJt[:, :, 1]], 2)).reshape(
                 B, -1, 6 * S)
             # MuJoCo's rows hold J qacc = J (z - z0), z0 the accelerations at qacc = 0: J z holds a_ref + J z0
+            D, d = _generalised_rows(xd, R, t, xs, w, drives, S, rate)
             if h is not None:  # the bias of the joints' own rows, not of their implicit linearisation
-                _, _, _, J0, rhs0, rate0 = _tree(xd, R, t, T, drives, S, w, None)
+                _, _, _, J0, rhs0, _ = _tree(xd, R, t, T, drives, S, w, None)
             else:
-                J0, rhs0, rate0 = J, rhs, rate
-            z0 = _bias_accelerations(xd, R, t, xs, w, drives, S, J0, rhs0, rate0)
+                J0, rhs0 = J, rhs
+            z0 = _bias_accelerations(J0, rhs0, D, d)
             uni_J.append(Je)
             uni_r.append(a_e.reshape(B, -1) + (Je @ z0.unsqueeze(-1)).squeeze(-1))
             uni_R.append(R_e.reshape(B, -1))
@@ -1505,8 +1556,10 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         b0 = torch.cat(rhs, -1) if rhs else xd.new_zeros(B, 0)
         held = torch.cat(uni_held, 1)
         released = warm.get("released") if warm is not None else None
-        z, pushes = _unilateral_solve(M, F, Jm, b0, torch.cat(uni_J, 1), torch.cat(uni_r, 1), torch.cat(uni_R, 1),
-                                      held, torch.compiler.is_compiling(),
+        if not (len(drives.corner_obj) or len(drives.rim_obj)):  # limits alone: no contact rows built D
+            D = _generalised_rows(xd, R, t, xs, w, drives, S, rate)[0]
+        z, pushes = _unilateral_solve(M, F, Jm, b0, D, torch.cat(uni_J, 1), torch.cat(uni_r, 1),
+                                      torch.cat(uni_R, 1), held, torch.compiler.is_compiling(),
                                       drives.const(drives.moving_columns(), dev, torch.int64),
                                       start=None if released is None else ~released)
         if warm is not None:  # the rows held that did not push: the next solve starts them free

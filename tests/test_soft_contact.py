@@ -258,13 +258,16 @@ def test_the_compiled_soft_contact_gives_the_eager_accelerations():
 
 @pytest.mark.parametrize("static, fixed", [(False, False), (True, False), (False, True), (True, True)])
 def test_eliminating_the_soft_rows_gives_the_solution_with_their_forces_as_unknowns(static, fixed):
-    """The soft rows' forces ``l = (J z - a_ref) / R`` are eliminated from the system (Schur's complement,
-    :func:`mdgs.actuation._unilateral_solve`): on random systems (a positive definite ``M`` of 3 bodies, 9 bilateral
+    """The soft rows' forces ``l = (J z - a_ref) / R`` are eliminated from the system (Schur's complement) and the
+    bilateral rows' by solving in the coordinates that random completing rows ``D`` give
+    (:func:`mdgs.actuation._unilateral_solve`): on random systems (a positive definite ``M`` of 3 bodies, 9 bilateral
     rows, 40 unilateral ones of which about half are held, ``R`` from 1e-3 to 10: on the study scenes' soft-8 test
     rollouts no R was below 1e-3) the accelerations equal those of the full system written here with every held row's
-    force an unknown and the same active-set passes, to 1e-9 relative (float64 solves of sizes 27 and up to 67). With
-    ``fixed`` the first body is held still by the first 6 bilateral rows, as the world's elements are, and leaves the
-    system too; ``static`` runs the compiled steps' path (every row in every pass)."""
+    force and every bilateral row's an unknown and the same active-set passes, to 1e-9 relative (float64; the full
+    systems have 27 to 67 unknowns, the solve's passes 9). With ``fixed`` the first body is held
+    still by the first 6 bilateral rows, as the world's elements are, and leaves the system first; ``static`` runs the
+    compiled steps' path (every row in every pass). Started from other states (every held row free, or the settled
+    ones) the solve settles on the same solution."""
     from mdgs.actuation import SOFT_CONTACT_PASSES, _unilateral_solve
 
     g = torch.Generator().manual_seed(3)
@@ -301,17 +304,40 @@ def test_eliminating_the_soft_rows_gives_the_solution_with_their_forces_as_unkno
             break
         active = pushes
     assert bool((active != held).any()) and bool(active.any())  # some held rows let go, some push: both cases checked
-    got, states = _unilateral_solve(M, F, Jm, b0, Ju, ru, Ru, held, static, keep)
+    D = torch.randn(B, S6 - C0, S6, generator=g, **f64)  # any rows that complete Jm to an invertible square
+    got, states = _unilateral_solve(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep)
     if fixed:
         assert float(z[:, :6].abs().max()) < 1e-12 and bool((got[:, :6] == 0).all())
     np.testing.assert_allclose(got.numpy(), z.numpy(), rtol=0, atol=1e-9 * float(z.abs().max()))
     assert torch.equal(states, active)  # the states the solve settled on, every candidate's (held or not)
     # started elsewhere (every held row free, or from the settled states) it settles on the same solution
     for start in (torch.zeros_like(held), active):
-        again, states = _unilateral_solve(M, F, Jm, b0, Ju, ru, Ru, held, static, keep, start=start)
+        again, states = _unilateral_solve(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep, start=start)
         np.testing.assert_allclose(again.numpy(), z.numpy(), rtol=0, atol=1e-9 * float(z.abs().max()))
         assert torch.equal(states, active)
 
+
+
+@pytest.mark.parametrize("n", [1, 8, 9, 16])
+def test_the_compiled_passes_elimination_solves_as_the_librarys_lu(n):
+    """:func:`mdgs.actuation._solve_unpivoted`, the compiled soft passes' solve, on random systems like theirs: a
+    joint-space inertia (symmetric positive definite, condition up to 1e4 as a light flywheel on a heavy cube gives)
+    plus contact stiffness ``(J G)^T W (J G)`` and a small skew term (the step's gyroscopic linearisation), a batch of
+    8: the solution of ``torch.linalg.solve`` to 1e-10 relative (float64; elimination without pivoting loses no more
+    than the condition number's digits on such systems). Traced (dynamo, no graph break) it gives the same."""
+    from mdgs.actuation import _solve_unpivoted
+
+    g = torch.Generator().manual_seed(n)
+    f64 = dict(dtype=torch.float64)
+    Q, _ = torch.linalg.qr(torch.randn(8, n, n, generator=g, **f64))
+    M = Q @ torch.diag_embed(10 ** (4 * torch.rand(8, n, generator=g, **f64) - 2)) @ Q.transpose(-1, -2)
+    J = torch.randn(8, 12, n, generator=g, **f64)
+    S = torch.randn(8, n, n, generator=g, **f64)
+    K = M + J.transpose(-1, -2) @ (torch.rand(8, 12, 1, generator=g, **f64) * J) + 1e-3 * (S - S.transpose(-1, -2))
+    b = torch.randn(8, n, generator=g, **f64)
+    want = torch.linalg.solve(K, b)
+    for got in (_solve_unpivoted(K, b), torch.compile(_solve_unpivoted, backend="eager", fullgraph=True)(K, b)):
+        np.testing.assert_allclose(got.numpy(), want.numpy(), rtol=0, atol=1e-10 * float(want.abs().max()))
 
 def test_the_soft_contact_tree_is_a_reference_of_mdgs_evaluate_and_is_refused_with_push_out():
     import typer

@@ -5,11 +5,12 @@
 DATA_FOLDER holds ``SCENE/SPLIT.h5`` as for ``soft_contact.py`` (default scenes: the three study scenes). The rigid tree
 of ``studies/mdgs-soft-8.toml`` (soft contact, eight substeps, velocity Verlet in joint coordinates) rolls out every
 trajectory of the split twice: with :func:`mdgs.actuation._unilateral_solve` as it is (each pushing row's force
-``(J z - a_ref) / R`` eliminated, Schur's complement, and the world's still elements out of the system), and with it
-replaced by the full system written here, every pushing row's force an unknown of its own and the world's elements'
-rows kept (``[M Jm^T Ja^T; Jm 0 0; Ja 0 -R]``, the form the package solved before). Printed per scene: the largest
-difference of the two sets of accelerations on the same states (every forward-dynamics call of the first rollout,
-relative to the call's largest acceleration), the size of the systems each solves, the largest differences of the two
+``(J z - a_ref) / R`` eliminated, Schur's complement, the world's still elements out of the system, and each pass
+solved in the tree's degrees of freedom), and with it replaced by the full system written here, every pushing row's
+force and every joint's an unknown of its own and the world's elements' rows kept (``[M Jm^T Ja^T; Jm 0 0; Ja 0
+-R]``, the form the package solved before either change). Printed per scene: the largest difference of the two sets
+of accelerations on the same states (every forward-dynamics call of the first rollout, relative to the call's largest
+acceleration), the size of the systems each pass solves, the largest differences of the two
 rollouts' positions and velocities (the rollouts' own float32), the position MSE of both at t = 40 and t = 110, and the
 seconds each rollout spent stepping (one torch thread, eager).
 """
@@ -32,7 +33,7 @@ TREE = dict(dynamics=True, joints=True, trapezoidal=True, substeps=8, contact="s
 eliminated = actuation._unilateral_solve
 
 
-def full(M, F, Jm, b0, Ju, ru, Ru, held, static, keep=None, start=None):
+def full(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep=None, start=None):
     """The same accelerations from the system with every pushing row's force an unknown (the same active-set passes
     from the same start, stopping once the states repeat), and the states of its last pass; records the largest
     system solved."""
@@ -55,15 +56,14 @@ def full(M, F, Jm, b0, Ju, ru, Ru, held, static, keep=None, start=None):
     return z, pushes
 
 
-def both(M, F, Jm, b0, Ju, ru, Ru, held, static, keep=None, start=None):
+def both(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep=None, start=None):
     """The eliminated solve, compared on the spot with the full one."""
-    z, pushes = eliminated(M, F, Jm, b0, Ju, ru, Ru, held, static, keep, start=start)
-    ref, _ = full(M, F, Jm, b0, Ju, ru, Ru, held, static, start=start)
+    z, pushes = eliminated(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep, start=start)
+    ref, _ = full(M, F, Jm, b0, D, Ju, ru, Ru, held, static, start=start)
     scale = float(ref.abs().max())
     stats["rel"] = max(stats["rel"], float((z - ref).abs().max()) / max(scale, 1e-300))
     stats["calls"] += 1
-    k = keep.shape[0] if keep is not None else M.shape[-1]  # the moving objects' columns
-    stats["elim_n"] = k + Jm.shape[1] - (M.shape[-1] - k)
+    stats["elim_n"] = D.shape[1]  # each pass's unknowns: the tree's degrees of freedom
     return z, pushes
 
 
@@ -89,6 +89,6 @@ for scene in scenes:
           f"{np.nanmean(e.pos_mse[:, -1]):>11.4g}{np.nanmean(f.pos_mse[:, -1]):>11.4g}"
           f"{e.step_seconds:>8.1f}{f.step_seconds:>8.1f}", flush=True)
 print("calls: forward-dynamics calls with soft rows in the first rollout; max rel dz: largest difference of the two "
-      "solves' accelerations over the call's largest; n elim, n full: unknowns of the eliminated system and the "
+      "solves' accelerations over the call's largest; n elim, n full: unknowns of each pass's system, eliminated, and the "
       "largest full system solved (eagerly only the held rows enter either); max |dx|, |dv|: the two rollouts' largest "
       "differences; t40, t110: position MSE (m^2) of each; s: seconds stepping each rollout")
