@@ -14,7 +14,9 @@
 # PYTEST_K="soft-8 and replays" (its CUDA graph against its eager step; compiling took about 255 s), and, since the soft
 # contact's rows left the system (docs/results.md, "The soft contact's rows out of the system"), its costs again:
 # python3 benchmarks/compiled_dynamics.py --device cuda --substeps 8 --contact soft --joint-velocities coordinates
-# --models mdgs --modes none cudagraphs --batch 256.
+# --models mdgs --modes none cudagraphs --batch 256. Since the passes are solved by fused elimination when compiled
+# (docs/results.md, "The joints' rows out of the passes too"), that test also checks the elimination inside a CUDA
+# graph, and the benchmark's max |dx| column its rollout against the eager one.
 # PARTS picks parts (default "eager compiled tests profile"); all four take more than one 10-minute
 # device call, so run PARTS="eager compiled" and PARTS="tests profile" as two calls.
 # PYTEST_K selects tests (pytest -k). Outputs go to $OUT (default cuda-out/): env.txt, bench_eager.txt,
