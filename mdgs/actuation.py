@@ -969,9 +969,9 @@ def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: to
     push or could; the same ``z`` as with the rows' forces and the joints' as unknowns (to round-off,
     ``tests/test_soft_contact.py``). Compiled, every row enters (no shape follows the state) and a system of at most
     ``UNPIVOTED_SOLVE_MAX`` unknowns is solved by fused elimination (:func:`_solve_unpivoted`); eagerly the batch's
-    held rows only, by the library's LU. ``keep`` [6S - 6k] (int64): the columns of the objects that move, where ``Jm``'s first ``6k``
-    rows hold the other ``k`` still (the world's elements, :func:`_tree`): those accelerations are zero, so their rows
-    and columns leave the system first.
+    held rows only, by the library's LU. ``keep`` [6S - 6k] (int64): the columns of the objects that move, where
+    ``Jm``'s first ``6k`` rows hold the other ``k`` still (the world's elements, :func:`_tree`): those accelerations
+    are zero, so their rows and columns leave the system first.
 
     ``start`` [B, U] (bool): the rows that may start pushing (the first pass's states are ``held & start``; all held
     rows without it), so that a solve starts from the states its predecessor in the step settled on
@@ -1256,10 +1256,11 @@ def _tree(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, T: dict, drives: D
 
 def _generalised_rows(xd: torch.Tensor, R: torch.Tensor, t: torch.Tensor, xs: torch.Tensor, w: torch.Tensor,
                       drives: DriveSet, S: int, rate: dict) -> tuple[torch.Tensor, torch.Tensor]:
-    """Rows ``D`` [B, n, 6S] that read the tree's generalised accelerations (MuJoCo's ``qacc``) off the objects'
-    stacked accelerations ``z``, less their velocity terms ``d`` [B, n]: ``D z - d = qacc``. Each root (and each free
-    child, and each object left out of the links) gives six, its origin's acceleration less the centripetal part
-    about its mass centre and its angular acceleration; each hinge and slide one, its rate row (:func:`_tree`'s
+    """Rows ``D`` [B, n, 6S] and values ``d`` [B, n] with ``D z = d`` exactly where every joint's generalised
+    acceleration (MuJoCo's ``qacc``) is zero, ``z`` the objects' stacked accelerations: ``D z - d`` are ``n``
+    coordinates of the tree's generalised accelerations. Each root (and each free child, and each object left out of
+    the links) gives six, its own accelerations (``d``: its mass centre's acceleration while its origin is
+    unaccelerated and its angular velocity constant); each hinge and slide one, its rate row (:func:`_tree`'s
     ``rate``; a hinge's ``qdd = n . (alpha_c - alpha_p) - n . (w_p x (w_c - w_p))``); each ball three, the relative
     angular acceleration; welds and the world's elements none. Stacked under the joints' rows ``J`` of :func:`_tree`
     they make a square system: the joints fix ``6S - n`` accelerations, these the other ``n``."""
