@@ -8,8 +8,9 @@ forward dynamics, trapezoidal, projected onto the joints as every study row of i
 the tiny Cubli's fast flywheel leaves its hinge within ten frames, and a diverging rollout is not a step
 worth timing) and MDGS on that prior (``actuation = "dynamics"``, its joints projected by default), ms per frame for
 one trajectory and per trajectory-frame at ``--batch`` trajectories, eager and compiled with inductor
-(:func:`mdgs.evaluate.cost.compiled_cost`; compile seconds outside the timings), and how far the first test
-trajectory's rollout with the step as timed lies from the eager rollout (``max |dx|``), or ahead of time (``--modes none aot``). Compiled, the forward
+(:func:`mdgs.evaluate.cost.compiled_cost`; compile seconds outside the timings), or ahead of time (``--modes none
+aot``), and how far the first test trajectory's rollout with the step as timed lies from the eager one (``max
+|dx|``). Compiled, the forward
 dynamics solves with a slot for every contact candidate and runs every pass
 (:func:`mdgs.actuation.coupled_motor_accelerations`), so that its shapes do not follow the state: cheaper
 for one trajectory (no graph breaks), dearer in a batch (larger systems than the eager step's; with the soft contact

@@ -1466,6 +1466,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
     # which rows are on [B, k, 3] and whether it is held [B, k]
     cand_J, cand_C, cand_r, cand_on, cand_held, cand_R, cand_mu, cand_ut = [], [], [], [], [], [], [], []
     soft = dynamic and contact == "soft"
+    if soft:  # rows completing the joints' to a square system: the bias accelerations and the soft solve use them
+        D, d = _generalised_rows(xd, R, t, xs, w, drives, S, rate)
     uni_J, uni_r, uni_R, uni_held = [], [], [], []  # soft: every row its own unilateral candidate [B, k, ...]
     if dynamic and (len(drives.corner_obj) or len(drives.rim_obj)):
         ct = contacts(R, t, tw, drives, dt)
@@ -1481,7 +1483,6 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             Je = (Jc[:, :, 2:] + torch.stack([mJt[:, :, 0], -mJt[:, :, 0], mJt[:, :, 1], -mJt[:, :, 1]], 2)).reshape(
                 B, -1, 6 * S)
             # MuJoCo's rows hold J qacc = J (z - z0), z0 the accelerations at qacc = 0: J z holds a_ref + J z0
-            D, d = _generalised_rows(xd, R, t, xs, w, drives, S, rate)
             if h is not None:  # the bias of the joints' own rows, not of their implicit linearisation
                 _, _, _, J0, rhs0, _ = _tree(xd, R, t, T, drives, S, w, None)
             else:
@@ -1557,8 +1558,6 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
         b0 = torch.cat(rhs, -1) if rhs else xd.new_zeros(B, 0)
         held = torch.cat(uni_held, 1)
         released = warm.get("released") if warm is not None else None
-        if not (len(drives.corner_obj) or len(drives.rim_obj)):  # limits alone: no contact rows built D
-            D = _generalised_rows(xd, R, t, xs, w, drives, S, rate)[0]
         z, pushes = _unilateral_solve(M, F, Jm, b0, D, torch.cat(uni_J, 1), torch.cat(uni_r, 1),
                                       torch.cat(uni_R, 1), held, torch.compiler.is_compiling(),
                                       drives.const(drives.moving_columns(), dev, torch.int64),

@@ -317,7 +317,6 @@ def test_eliminating_the_soft_rows_gives_the_solution_with_their_forces_as_unkno
         assert torch.equal(states, active)
 
 
-
 @pytest.mark.parametrize("n", [1, 8, 9, 16])
 def test_the_compiled_passes_elimination_solves_as_the_librarys_lu(n):
     """:func:`mdgs.actuation._solve_unpivoted`, the compiled soft passes' solve, on random systems like theirs: a
@@ -338,6 +337,7 @@ def test_the_compiled_passes_elimination_solves_as_the_librarys_lu(n):
     want = torch.linalg.solve(K, b)
     for got in (_solve_unpivoted(K, b), torch.compile(_solve_unpivoted, backend="eager", fullgraph=True)(K, b)):
         np.testing.assert_allclose(got.numpy(), want.numpy(), rtol=0, atol=1e-10 * float(want.abs().max()))
+
 
 def test_the_soft_contact_tree_is_a_reference_of_mdgs_evaluate_and_is_refused_with_push_out():
     import typer
