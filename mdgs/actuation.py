@@ -945,8 +945,8 @@ def pyramid_frame(n: torch.Tensor) -> torch.Tensor:
 
 def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: torch.Tensor, D: torch.Tensor,
                       Ju: torch.Tensor, ru: torch.Tensor, Ru: torch.Tensor, held: torch.Tensor, static: bool,
-                      keep: torch.Tensor | None = None,
-                      start: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                      keep: torch.Tensor | None = None, start: torch.Tensor | None = None,
+                      d: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """The stacked accelerations ``z`` [B, 6S] of ``M z = F + Jm^T l_m + Ju^T l_u`` with the bilateral rows ``Jm z =
     b0`` ([B, C0, 6S], [B, C0]) and the soft unilateral rows ``Ju`` [B, U, 6S] (references ``ru``, regularisation
     ``Ru``, [B, U]) of which those ``held`` [B, U] may push: MuJoCo's soft constraints, each row ``J z - R l = a_ref``
@@ -976,12 +976,16 @@ def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: to
     ``start`` [B, U] (bool): the rows that may start pushing (the first pass's states are ``held & start``; all held
     rows without it), so that a solve starts from the states its predecessor in the step settled on
     (``warm`` of :func:`coupled_motor_accelerations`). Where the states settle, the accelerations are those of the
-    settled states whatever the start. Returns ``z`` and the states [B, U] the last pass decided (every candidate,
-    held or not)."""
+    settled states whatever the start.
+
+    ``d`` [B, n]: with it, the rows hold ``Ju z = ru + Ju z0`` instead of ``ru``, ``z0`` the bias accelerations of
+    :func:`_bias_accelerations` (``Jm z0 = b0``, ``D z0 = d``), which the factorisation of ``P`` gives without a
+    solve of their own: ``z0 = zp + G d``, so ``a_ref - Ju zp = ru + (Ju G) d``. Returns ``z`` and the states [B, U]
+    the last pass decided (every candidate, held or not)."""
     if keep is not None and keep.shape[0] < M.shape[-1]:
         r0 = M.shape[-1] - keep.shape[0]
         z, pushes = _unilateral_solve(M[:, keep][:, :, keep], F[:, keep], Jm[:, r0:][:, :, keep], b0[:, r0:],
-                                      D[:, :, keep], Ju[:, :, keep], ru, Ru, held, static, start=start)
+                                      D[:, :, keep], Ju[:, :, keep], ru, Ru, held, static, start=start, d=d)
         return M.new_zeros(M.shape[0], M.shape[-1]).index_copy(1, keep, z), pushes
     B, C0, n = Jm.shape[0], Jm.shape[1], D.shape[1]
     # z = G y + zp keeps the bilateral rows: [Jm; D] [G zp] = [[0, b0]; [I, 0]]
@@ -1001,13 +1005,32 @@ def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: to
         ru, Ru, held = torch.gather(ru, 1, sel), torch.gather(Ru, 1, sel), torch.gather(held, 1, sel)
         active = torch.gather(active, 1, sel)
     JG = Ju @ G  # [B, U, n]
-    gap = ru - (Ju @ zp.unsqueeze(-1)).squeeze(-1)  # a_ref - Ju zp [B, U]
-    JGT = JG.transpose(-1, -2)
+    if d is None:
+        gap = ru - (Ju @ zp.unsqueeze(-1)).squeeze(-1)  # a_ref - Ju zp [B, U]
+    else:  # a_ref = ru + Ju (zp + G d)
+        gap = ru + (JG * d.unsqueeze(1)).sum(-1)
     solve = _solve_unpivoted if torch.compiler.is_compiling() and n <= UNPIVOTED_SOLVE_MAX else _solve
-    for _ in range(SOFT_CONTACT_PASSES):
+
+    def newton(active: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # one pass: y and the states it decides
+        JGT = JG.transpose(-1, -2)
         W = active.to(M.dtype) / Ru  # [B, U]
         y = solve(Mr + JGT @ (W.unsqueeze(-1) * JG), fr + (JGT @ (W * gap).unsqueeze(-1)).squeeze(-1))
-        pushes = held & ((JG @ y.unsqueeze(-1)).squeeze(-1) < gap)
+        return y, held & ((JG @ y.unsqueeze(-1)).squeeze(-1) < gap)
+
+    if static and M.device.type == "cpu":  # compiled for the CPU: the loop itself compiled, stopping as eagerly
+        def unsettled(k, y, active, settled):
+            return (k < SOFT_CONTACT_PASSES) & ~settled
+
+        def one_pass(k, y, active, settled):
+            y, pushes = newton(active)
+            return k + 1, y.contiguous(), pushes, (pushes == active).all()
+
+        _, y, pushes, _ = torch.while_loop(unsettled, one_pass, (torch.zeros((), dtype=torch.int64, device=M.device),
+                                                                 fr.new_zeros(B, n), active.clone(),
+                                                                 torch.zeros((), dtype=torch.bool, device=M.device)))
+        return (G @ y.unsqueeze(-1)).squeeze(-1) + zp, pushes
+    for _ in range(SOFT_CONTACT_PASSES):
+        y, pushes = newton(active)
         if not static and bool((pushes == active).all()):
             break
         active = pushes
@@ -1482,14 +1505,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             mJt = ct.mu.clamp_min(MIN_FRICTION).view(1, -1, 1, 1) * Jc[:, :, :2]
             Je = (Jc[:, :, 2:] + torch.stack([mJt[:, :, 0], -mJt[:, :, 0], mJt[:, :, 1], -mJt[:, :, 1]], 2)).reshape(
                 B, -1, 6 * S)
-            # MuJoCo's rows hold J qacc = J (z - z0), z0 the accelerations at qacc = 0: J z holds a_ref + J z0
-            if h is not None:  # the bias of the joints' own rows, not of their implicit linearisation
-                _, _, _, J0, rhs0, _ = _tree(xd, R, t, T, drives, S, w, None)
-            else:
-                J0, rhs0 = J, rhs
-            z0 = _bias_accelerations(J0, rhs0, D, d)
             uni_J.append(Je)
-            uni_r.append(a_e.reshape(B, -1) + (Je @ z0.unsqueeze(-1)).squeeze(-1))
+            uni_r.append(a_e.reshape(B, -1))  # MuJoCo's a_ref; the bias is added at the solve
             uni_R.append(R_e.reshape(B, -1))
             uni_held.append((ct.gap < 0).repeat_interleave(4, dim=1))  # MuJoCo: dist < margin - gap (0)
     if dynamic and not soft and (len(drives.corner_obj) or len(drives.rim_obj)):
@@ -1533,8 +1550,8 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             qd = (n * (v_c - v_p)).sum(-1)
             vel = torch.zeros_like(qd)
         for sign, bound in ((1.0, lk.limit[0]), (-1.0, lk.limit[1])):  # the lower limit pushes q up
-            h, hd = sign * (q - bound), sign * qd
-            a_ref, R_lim = _soft_reference(h, hd, lk)
+            past, hd = sign * (q - bound), sign * qd  # the distance to the limit and its rate
+            a_ref, R_lim = _soft_reference(past, hd, lk)
             row = xd.new_zeros(B, 1, 3, 6 * S)
             row[:, 0, 2] = sign * rate[c][:, 0]
             r = xd.new_zeros(B, 1, 3)
@@ -1546,22 +1563,29 @@ def coupled_motor_accelerations(x: torch.Tensor, ctrl: torch.Tensor, drives: Dri
             cand_r.append(r)
             cand_R.append(cR)
             cand_on.append(torch.tensor([False, False, True], device=dev).expand(B, 1, 3))
-            cand_held.append(((h < lk.margin) | (h + dt * hd.clamp_max(0.0) < lk.margin)).unsqueeze(1))
+            cand_held.append(((past < lk.margin) | (past + dt * hd.clamp_max(0.0) < lk.margin)).unsqueeze(1))
             cand_mu.append(torch.full((1,), torch.inf, dtype=f64, device=dev))
             cand_ut.append(xd.new_zeros(B, 1, 2))
             uni_J.append(row[:, :, 2])
-            uni_r.append(r[:, :, 2])
+            uni_r.append(a_ref.unsqueeze(1))  # the bias (sign vel, the row's J z0) is added at the solve
             uni_R.append(cR[:, :, 2])
-            uni_held.append((h < lk.margin).unsqueeze(1))  # MuJoCo's rule: a limit acts once within its margin
+            uni_held.append((past < lk.margin).unsqueeze(1))  # MuJoCo's rule: a limit acts once within its margin
     if soft and uni_J:  # MuJoCo's soft constraints: the pyramids' edges and the limits, each pushing or free
         Jm = torch.cat(J, 1) if J else xd.new_zeros(B, 0, 6 * S)
         b0 = torch.cat(rhs, -1) if rhs else xd.new_zeros(B, 0)
         held = torch.cat(uni_held, 1)
         released = warm.get("released") if warm is not None else None
-        z, pushes = _unilateral_solve(M, F, Jm, b0, D, torch.cat(uni_J, 1), torch.cat(uni_r, 1),
-                                      torch.cat(uni_R, 1), held, torch.compiler.is_compiling(),
+        Ju, ru = torch.cat(uni_J, 1), torch.cat(uni_r, 1)
+        # MuJoCo's rows hold J qacc = J (z - z0), z0 the accelerations at qacc = 0: J z holds a_ref + J z0, z0 of
+        # the factorisation the solve makes anyway (its d), or, where the joints' rows are linearised in the step,
+        # of their own rows
+        if h is not None:
+            _, _, _, J0, rhs0, _ = _tree(xd, R, t, T, drives, S, w, None)
+            ru = ru + (Ju @ _bias_accelerations(J0, rhs0, D, d).unsqueeze(-1)).squeeze(-1)
+        z, pushes = _unilateral_solve(M, F, Jm, b0, D, Ju, ru, torch.cat(uni_R, 1), held,
+                                      torch.compiler.is_compiling(),
                                       drives.const(drives.moving_columns(), dev, torch.int64),
-                                      start=None if released is None else ~released)
+                                      start=None if released is None else ~released, d=None if h is not None else d)
         if warm is not None:  # the rows held that did not push: the next solve starts them free
             warm["released"] = held & ~pushes
         z = z.view(B, S, 6)

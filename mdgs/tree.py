@@ -266,7 +266,9 @@ def _coordinates_step(x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor, driv
             if xp is not xd or vp is not vd:  # the push keeps the joints to first order: put them back
                 xd, vd = (a.to(f64) for a in (project_joints(xp, vp, joints, ref, seg, n_obj, mass) if joints
                                               else (xp, vp)))
-        pose = pose_of(xd, vd, ref, seg, n_obj, mass)
+            pose = pose_of(xd, vd, ref, seg, n_obj, mass)
+        else:  # the nodes are the placed poses' (xd = Rn ref + tn): those are their fit, to round-off
+            pose = Pose(Rn, tn, twist(xd, vd, seg, n_obj, mass.to(dev)))
         if trapezoidal or k < substeps - 1:
             du_end = increments(xd, vd, pose)
         if trapezoidal:  # u' = u + (h a + h a') / 2: the prediction, less half of h a, plus half of h a'

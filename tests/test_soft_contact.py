@@ -267,7 +267,8 @@ def test_eliminating_the_soft_rows_gives_the_solution_with_their_forces_as_unkno
     systems have 27 to 67 unknowns, the solve's passes 9). With ``fixed`` the first body is held
     still by the first 6 bilateral rows, as the world's elements are, and leaves the system first; ``static`` runs the
     compiled steps' path (every row in every pass). Started from other states (every held row free, or the settled
-    ones) the solve settles on the same solution."""
+    ones) the solve settles on the same solution, and given the completing rows' values ``d`` it adds the bias
+    accelerations' ``Ju z0`` to the references as a separate solve for ``z0`` does."""
     from mdgs.actuation import SOFT_CONTACT_PASSES, _unilateral_solve
 
     g = torch.Generator().manual_seed(3)
@@ -315,6 +316,14 @@ def test_eliminating_the_soft_rows_gives_the_solution_with_their_forces_as_unkno
         again, states = _unilateral_solve(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep, start=start)
         np.testing.assert_allclose(again.numpy(), z.numpy(), rtol=0, atol=1e-9 * float(z.abs().max()))
         assert torch.equal(states, active)
+    # given d, the rows hold ru + Ju z0, z0 the bias accelerations of [Jm; D] z0 = [b0; d] (solved here on its own;
+    # the solve reads them off its own factorisation): the same solution from the references less Ju z0
+    d = torch.randn(B, S6 - C0, generator=g, **f64)
+    z0 = torch.linalg.solve(torch.cat([Jm, D], 1), torch.cat([b0, d], -1))
+    less = ru - (Ju @ z0.unsqueeze(-1)).squeeze(-1)
+    shifted, states = _unilateral_solve(M, F, Jm, b0, D, Ju, less, Ru, held, static, keep, d=d)
+    np.testing.assert_allclose(shifted.numpy(), z.numpy(), rtol=0, atol=1e-9 * float(z.abs().max()))
+    assert torch.equal(states, active)
 
 
 @pytest.mark.parametrize("n", [1, 8, 9, 16])

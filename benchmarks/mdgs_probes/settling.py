@@ -37,7 +37,8 @@ solve, unilateral = actuation._solve, actuation._unilateral_solve
 
 
 def counted(cold: bool):
-    """``_unilateral_solve`` counting its passes (the solves of its loop), started cold if ``cold``."""
+    """``_unilateral_solve`` counting its passes (the solves of its loop, after the one of ``[Jm; D]``), started cold
+    if ``cold``."""
     calls: list[tuple[bool, int]] = []  # (warm, passes) per call, in order
     box = {"n": 0}
 
@@ -45,16 +46,16 @@ def counted(cold: bool):
         box["n"] += 1
         return solve(K, b)
 
-    def wrapped(M, F, Jm, b0, Ju, ru, Ru, held, static, keep=None, start=None):
+    def wrapped(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep=None, start=None, d=None):
         if keep is not None and keep.shape[0] < M.shape[-1]:  # the outer call: it recurses once, keep = None
-            return unilateral(M, F, Jm, b0, Ju, ru, Ru, held, static, keep, start=None if cold else start)
+            return unilateral(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep, start=None if cold else start, d=d)
         box["n"] = 0
         actuation._solve = counting_solve
         try:
-            out = unilateral(M, F, Jm, b0, Ju, ru, Ru, held, static, keep, start=None if cold else start)
+            out = unilateral(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep, start=None if cold else start, d=d)
         finally:
             actuation._solve = solve
-        calls.append((start is not None and not cold, box["n"]))
+        calls.append((start is not None and not cold, box["n"] - 1))  # the first solve completes [Jm; D]: no pass
         return out
 
     return wrapped, calls

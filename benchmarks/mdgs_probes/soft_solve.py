@@ -6,9 +6,10 @@ DATA_FOLDER holds ``SCENE/SPLIT.h5`` as for ``soft_contact.py`` (default scenes:
 of ``studies/mdgs-soft-8.toml`` (soft contact, eight substeps, velocity Verlet in joint coordinates) rolls out every
 trajectory of the split twice: with :func:`mdgs.actuation._unilateral_solve` as it is (each pushing row's force
 ``(J z - a_ref) / R`` eliminated, Schur's complement, the world's still elements out of the system, and each pass
-solved in the tree's degrees of freedom), and with it replaced by the full system written here, every pushing row's
-force and every joint's an unknown of its own and the world's elements' rows kept (``[M Jm^T Ja^T; Jm 0 0; Ja 0
--R]``, the form the package solved before either change). Printed per scene: the largest difference of the two sets
+solved in the tree's degrees of freedom, the rows' bias accelerations from its own factorisation), and with it replaced
+by the full system written here, every pushing row's force and every joint's an unknown of its own, the world's
+elements' rows kept (``[M Jm^T Ja^T; Jm 0 0; Ja 0 -R]``, the form the package solved before these changes) and the
+bias from a solve of its own. Printed per scene: the largest difference of the two sets
 of accelerations on the same states (every forward-dynamics call of the first rollout, relative to the call's largest
 acceleration), the size of the systems each pass solves, the largest differences of the two
 rollouts' positions and velocities (the rollouts' own float32), the position MSE of both at t = 40 and t = 110, and the
@@ -33,11 +34,13 @@ TREE = dict(dynamics=True, joints=True, trapezoidal=True, substeps=8, contact="s
 eliminated = actuation._unilateral_solve
 
 
-def full(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep=None, start=None):
+def full(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep=None, start=None, d=None):
     """The same accelerations from the system with every pushing row's force an unknown (the same active-set passes
     from the same start, stopping once the states repeat), and the states of its last pass; records the largest
-    system solved."""
+    system solved. With ``d``, the rows' bias ``Ju z0`` from a solve of its own (``[Jm; D] z0 = [b0; d]``)."""
     B, C0, S6 = Jm.shape[0], Jm.shape[1], M.shape[-1]
+    if d is not None:
+        ru = ru + (Ju @ torch.linalg.solve(torch.cat([Jm, D], 1), torch.cat([b0, d], -1)).unsqueeze(-1)).squeeze(-1)
     active = held if start is None else held & start
     for _ in range(actuation.SOFT_CONTACT_PASSES):
         n = max(int(active.sum(-1).max()), 1)
@@ -56,10 +59,10 @@ def full(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep=None, start=None):
     return z, pushes
 
 
-def both(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep=None, start=None):
+def both(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep=None, start=None, d=None):
     """The eliminated solve, compared on the spot with the full one."""
-    z, pushes = eliminated(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep, start=start)
-    ref, _ = full(M, F, Jm, b0, D, Ju, ru, Ru, held, static, start=start)
+    z, pushes = eliminated(M, F, Jm, b0, D, Ju, ru, Ru, held, static, keep, start=start, d=d)
+    ref, _ = full(M, F, Jm, b0, D, Ju, ru, Ru, held, static, start=start, d=d)
     scale = float(ref.abs().max())
     stats["rel"] = max(stats["rel"], float((z - ref).abs().max()) / max(scale, 1e-300))
     stats["calls"] += 1
