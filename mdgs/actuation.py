@@ -1023,7 +1023,7 @@ def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: to
 
         def one_pass(k, y, active, settled):
             y, pushes = newton(active)
-            return k + 1, y.contiguous(), pushes, (pushes == active).all()
+            return k + 1, y.clone(memory_format=torch.contiguous_format), pushes, (pushes == active).all()
 
         _, y, pushes, _ = torch.while_loop(unsettled, one_pass, (torch.zeros((), dtype=torch.int64, device=M.device),
                                                                  fr.new_zeros(B, n), active.clone(),

@@ -256,6 +256,20 @@ def test_the_compiled_soft_contact_gives_the_eager_accelerations():
         np.testing.assert_allclose(got.numpy(), eager.numpy(), rtol=0, atol=1e-9 * max(1.0, float(eager.abs().max())))
 
 
+def _soft_system(g: torch.Generator, B: int, S6: int, C0: int, U: int) -> tuple:
+    """A random system of :func:`mdgs.actuation._unilateral_solve`: a positive definite ``M`` [B, S6, S6], forces
+    ``F``, ``C0`` bilateral rows ``Jm``, ``b0``, ``U`` unilateral rows ``Ju``, references ``ru``, regularisation ``Ru``
+    from 1e-3 to 10 and about half of them held."""
+    f64 = dict(dtype=torch.float64)
+    L = torch.randn(B, S6, S6, generator=g, **f64)
+    M = L @ L.transpose(-1, -2) + S6 * torch.eye(S6, **f64)
+    F, Jm, b0 = (torch.randn(B, S6, generator=g, **f64), torch.randn(B, C0, S6, generator=g, **f64),
+                 torch.randn(B, C0, generator=g, **f64))
+    Ju, ru = torch.randn(B, U, S6, generator=g, **f64), torch.randn(B, U, generator=g, **f64)
+    Ru = 10 ** (4 * torch.rand(B, U, generator=g, **f64) - 3)
+    return M, F, Jm, b0, Ju, ru, Ru, torch.rand(B, U, generator=g) < 0.5
+
+
 @pytest.mark.parametrize("static, fixed", [(False, False), (True, False), (False, True), (True, True)])
 def test_eliminating_the_soft_rows_gives_the_solution_with_their_forces_as_unknowns(static, fixed):
     """The soft rows' forces ``l = (J z - a_ref) / R`` are eliminated from the system (Schur's complement) and the
@@ -274,13 +288,7 @@ def test_eliminating_the_soft_rows_gives_the_solution_with_their_forces_as_unkno
     g = torch.Generator().manual_seed(3)
     B, S6, C0, U = 4, 18, 9, 40
     f64 = dict(dtype=torch.float64)
-    L = torch.randn(B, S6, S6, generator=g, **f64)
-    M = L @ L.transpose(-1, -2) + S6 * torch.eye(S6, **f64)
-    F, Jm, b0 = (torch.randn(B, S6, generator=g, **f64), torch.randn(B, C0, S6, generator=g, **f64),
-                 torch.randn(B, C0, generator=g, **f64))
-    Ju, ru = torch.randn(B, U, S6, generator=g, **f64), torch.randn(B, U, generator=g, **f64)
-    Ru = 10 ** (4 * torch.rand(B, U, generator=g, **f64) - 3)
-    held = torch.rand(B, U, generator=g) < 0.5
+    M, F, Jm, b0, Ju, ru, Ru, held = _soft_system(g, B, S6, C0, U)
     keep = None
     if fixed:  # body 0 held still: z[:, :6] = 0
         Jm[:, :6], b0[:, :6], keep = torch.eye(6, S6, **f64), 0.0, torch.arange(6, S6)
@@ -346,6 +354,31 @@ def test_the_compiled_passes_elimination_solves_as_the_librarys_lu(n):
     want = torch.linalg.solve(K, b)
     for got in (_solve_unpivoted(K, b), torch.compile(_solve_unpivoted, backend="eager", fullgraph=True)(K, b)):
         np.testing.assert_allclose(got.numpy(), want.numpy(), rtol=0, atol=1e-10 * float(want.abs().max()))
+
+
+def test_the_compiled_passes_stop_once_the_states_repeat_with_the_solution_of_every_pass():
+    """Compiled for the CPU, the soft solve's passes run in a ``torch.while_loop`` that stops once the rows' states
+    repeat (:func:`mdgs.actuation._unilateral_solve`), where the uncompiled static path runs every pass. Compiled by
+    inductor (one graph), on random systems as in the elimination test (9 unknowns a pass): the accelerations of the
+    uncompiled static path to 1e-9 relative (fused elimination against the library's LU, float64) and the same states,
+    from every held row pushing (several passes) and from the settled states (one pass), for a batch of 4 and of 1.
+    The completing rows ``D`` span ``Jm``'s null space, as well conditioned as the tree's own (identity rows, joint
+    axes): with random ones the passes' systems are ill-conditioned enough that elimination without pivoting and the LU
+    part at 1e-8 relative."""
+    from mdgs.actuation import _unilateral_solve
+
+    g = torch.Generator().manual_seed(5)
+    S6, C0, U = 18, 9, 40
+    compiled = torch.compile(_unilateral_solve, fullgraph=True)
+    for B in (4, 1):
+        M, F, Jm, b0, Ju, ru, Ru, held = _soft_system(g, B, S6, C0, U)
+        D = torch.linalg.svd(Jm)[2][:, C0:]  # rows spanning Jm's null space: [Jm; D] conditioned as Jm (about 6)
+        want, states = _unilateral_solve(M, F, Jm, b0, D, Ju, ru, Ru, held, True)
+        assert bool((states != held).any())  # some held rows let go: the loop runs more than one pass
+        for start in (None, states):
+            got, got_states = compiled(M, F, Jm, b0, D, Ju, ru, Ru, held, True, start=start)
+            np.testing.assert_allclose(got.numpy(), want.numpy(), rtol=0, atol=1e-9 * float(want.abs().max()))
+            assert torch.equal(got_states, states)
 
 
 def test_the_soft_contact_tree_is_a_reference_of_mdgs_evaluate_and_is_refused_with_push_out():
