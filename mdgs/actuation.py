@@ -953,7 +953,8 @@ def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: to
     while it pushes (``J z < a_ref``) and free otherwise, the unique minimum of Gauss's principle plus the rows'
     quadratic penalties that MuJoCo's solvers find. Found by Newton's method on the rows' states (which rows push,
     read from the last solve's ``J z - a_ref``), as MuJoCo's Newton solver does without its line search: it stops
-    once the states repeat (``SOFT_CONTACT_PASSES`` at most; compiled, all of them).
+    once the states repeat (``SOFT_CONTACT_PASSES`` at most; compiled for the CPU, in a ``torch.while_loop``
+    that stops likewise; compiled for another device, or uncompiled with ``static``, all of them).
 
     A pushing row's force is ``l = W (a_ref - J z)``, ``W = diag(pushing / R)`` [B, U], so the rows leave the system
     (Schur's complement). The bilateral rows leave it too: with ``D`` [B, n, 6S] rows that complete ``Jm`` to a
@@ -1017,7 +1018,8 @@ def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: to
         y = solve(Mr + JGT @ (W.unsqueeze(-1) * JG), fr + (JGT @ (W * gap).unsqueeze(-1)).squeeze(-1))
         return y, held & ((JG @ y.unsqueeze(-1)).squeeze(-1) < gap)
 
-    if static and M.device.type == "cpu":  # compiled for the CPU: the loop itself compiled, stopping as eagerly
+    if static and torch.compiler.is_compiling() and M.device.type == "cpu":  # compiled for the CPU: the loop
+        # itself compiled, stopping as eagerly (every pass after the states repeat would solve the same system)
         def unsettled(k, y, active, settled):
             return (k < SOFT_CONTACT_PASSES) & ~settled
 
