@@ -1013,7 +1013,7 @@ def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: to
     solve = _solve_unpivoted if torch.compiler.is_compiling() and n <= UNPIVOTED_SOLVE_MAX else _solve
 
     def newton(active: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:  # one pass: y and the states it decides
-        JGT = JG.transpose(-1, -2)
+        JGT = JG.transpose(-1, -2)  # taken here: a while_loop refuses captured tensors that alias each other
         W = active.to(M.dtype) / Ru  # [B, U]
         y = solve(Mr + JGT @ (W.unsqueeze(-1) * JG), fr + (JGT @ (W * gap).unsqueeze(-1)).squeeze(-1))
         return y, held & ((JG @ y.unsqueeze(-1)).squeeze(-1) < gap)
@@ -1030,14 +1030,14 @@ def _unilateral_solve(M: torch.Tensor, F: torch.Tensor, Jm: torch.Tensor, b0: to
         _, y, pushes, _ = torch.while_loop(unsettled, one_pass, (torch.zeros((), dtype=torch.int64, device=M.device),
                                                                  fr.new_zeros(B, n), active.clone(),
                                                                  torch.zeros((), dtype=torch.bool, device=M.device)))
-        return (G @ y.unsqueeze(-1)).squeeze(-1) + zp, pushes
-    for _ in range(SOFT_CONTACT_PASSES):
-        y, pushes = newton(active)
-        if not static and bool((pushes == active).all()):
-            break
-        active = pushes
-    if not static:
-        pushes = torch.zeros_like(every).scatter(1, sel, pushes)
+    else:
+        for _ in range(SOFT_CONTACT_PASSES):
+            y, pushes = newton(active)
+            if not static and bool((pushes == active).all()):
+                break
+            active = pushes
+        if not static:
+            pushes = torch.zeros_like(every).scatter(1, sel, pushes)
     return (G @ y.unsqueeze(-1)).squeeze(-1) + zp, pushes
 
 
