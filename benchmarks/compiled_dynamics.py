@@ -24,6 +24,10 @@ run (soft: MuJoCo's soft contact without push-out, ``studies/mdgs-soft.toml``'s 
 ``--models gns`` adds GNS correcting the same tree (``prior = "tree"``, ``studies/gns-soft-8.toml``'s no-noise row;
 its tree has no push-out, so only with soft contact or one step a frame).
 
+``--loops vector scalar`` measures each compiled row with the step's loops written both ways for the CPU
+(:data:`mdgs.models.base.LOOPS`; default ``model``: as the model chooses, :attr:`~mdgs.models.Simulator.scalar_loops`),
+and ``--models plain`` adds MDGS alone (no prior, the registry's defaults), whose step is its network's.
+
 ``--device cuda`` measures on the GPU instead, where ``--modes none cudagraphs`` compares the eager step with
 the step replayed as a CUDA graph (:func:`mdgs.models.compile_step`); ``--models tree`` or ``mdgs`` measures one
 of the two; ``--batch 1`` times (and compiles) one trajectory only.
@@ -41,6 +45,7 @@ from bench_models import tiny_splits
 from mdgs.evaluate.cost import compiled_cost
 from mdgs.evaluate.rollout import rollout
 from mdgs.models import MODELS
+from mdgs.models.base import LOOPS
 from mdgs.tree import JOINT_VELOCITIES
 
 
@@ -52,7 +57,9 @@ def main() -> None:
     ap.add_argument("--device", default="cpu", help="cpu, or cuda")
     ap.add_argument("--modes", nargs="*", default=["none", "inductor"], choices=("none", "inductor", "aot", "cudagraphs"),
                     help="how the step runs: none (eager), inductor (torch.compile), aot (AOTInductor), cudagraphs (CUDA only)")
-    ap.add_argument("--models", nargs="*", default=["tree", "mdgs"], choices=("tree", "mdgs", "gns"))
+    ap.add_argument("--models", nargs="*", default=["tree", "mdgs"], choices=("tree", "mdgs", "gns", "plain"))
+    ap.add_argument("--loops", nargs="*", default=["model"], choices=("model", *LOOPS),
+                    help="how compiled steps write their loops for the CPU (model: as the model chooses)")
     ap.add_argument("--joint-velocities", default="parent", choices=JOINT_VELOCITIES,
                     help="with --substeps N > 1: how the tree keeps its joints (coordinates: stepped in them, Verlet)")
     ap.add_argument("--contact", nargs="*", default=["rigid"], choices=("rigid", "soft"),
@@ -83,21 +90,26 @@ def main() -> None:
                 prior="tree", prior_substeps=args.substeps, prior_trapezoidal=True, prior_contact=contact,
                 prior_joint_velocities=args.joint_velocities, noise_std=0.0))))
             if k in args.models]
+    if "plain" in args.models:
+        builds.append(("plain", "mdgs alone (no prior)", lambda: md.from_data(tr, md.Config())))
     where = "CPU, 1 torch thread" if dev.type == "cpu" else f"{torch.cuda.get_device_name(dev)}, torch {torch.__version__}"
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, {where}")
-    print(f"{'model':52s}{'step':>10s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>13s}{'compile s':>11s}{'max |dx| m':>12s}")
+    print(f"{'model':52s}{'step':>10s}{'loops':>8s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>13s}{'compile s':>11s}{'max |dx| m':>12s}")
     one = dataclasses.replace(te, **{k: getattr(te, k)[:1] for k in ("x", "v", "ctrl", "qpos", "qvel", "act")
                                      if getattr(te, k) is not None})  # the first test trajectory
     for _, label, build in builds:
-        for mode in args.modes:
+        for mode, loops in [(m, lp) for m in args.modes for lp in (args.loops if m in ("inductor", "aot") else ["model"])]:
             model = build().to(dev)
             eager = rollout(model, one, dev).x
-            r = compiled_cost(model, te, mode, batched=args.batch)
+            r = compiled_cost(model, te, mode, batched=args.batch, loops=None if loops == "model" else loops)
             dx = float(np.abs(rollout(model, one, dev).x - eager).max())  # the step as timed, one trajectory
-            print(f"{label:52s}{r['compiled']:>10s}{r['single']['ms_per_frame']:>10.3f}"
+            way = "-" if r["compiled"] not in ("inductor", "aot") or dev.type != "cpu" else (
+                loops if loops != "model" else ("scalar" if model.scalar_loops else "vector"))
+            print(f"{label:52s}{r['compiled']:>10s}{way:>8s}{r['single']['ms_per_frame']:>10.3f}"
                   f"{r['batched']['ms_per_trajectory_frame']:>13.3f}{r['compile_seconds']:>11.0f}{dx:>12.2g}"
                   + (f"  ({r['note']})" if r["note"] else ""), flush=True)
-    print("step: none = eager, inductor = torch.compile, aot = AOTInductor, cudagraphs = replayed as a CUDA graph; ms/f b1: ms per frame, one "
+    print("step: none = eager, inductor = torch.compile, aot = AOTInductor, cudagraphs = replayed as a CUDA graph; loops: how "
+          "the compiled step's loops are written for the CPU (vector or scalar; - for the eager step); ms/f b1: ms per frame, one "
           "trajectory; ms/tf bN: ms per trajectory-frame at batch N; max |dx|: the largest difference of the rollout of "
           "the first test trajectory with the step as timed from the eager one (float32 positions)")
 

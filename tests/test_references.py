@@ -167,6 +167,53 @@ def test_only_a_single_trajectorys_step_with_one_rotation_fit_is_exported_with_j
         assert any("copysign" in op for op in ops) == jacobi
 
 
+def test_steps_that_run_the_rigid_tree_compile_with_scalar_loops_unless_told_otherwise(test_split, monkeypatch):
+    """Ahead of time, a step that runs the rigid tree's forward dynamics (MDGS's "dynamics" prior, constant twist
+    with ``dynamics``) is compiled with a vector width of one bit (scalar loops), a step without it with inductor's
+    vectors; ``loops`` overrides the model's choice and an unknown way is refused by name. Compiling itself is
+    stood in for."""
+    from mdgs.models import compile_step
+
+    options = []
+
+    def stop(program, inductor_configs=None, **kw):
+        options.append(dict(inductor_configs or {}))
+        raise RuntimeError("stood in for")
+
+    monkeypatch.setattr(torch._inductor, "aoti_compile_and_package", stop)
+    md, ct = MODELS["mdgs"], MODELS["constant-twist"]
+    cases = [(md.from_data(test_split), None, False), (md.from_data(test_split, md.Config(actuation="dynamics")), None, True),
+             (ct.from_data(test_split), None, False), (ct.from_data(test_split, ct.Config(dynamics=True)), None, True),
+             (md.from_data(test_split, md.Config(actuation="dynamics")), "vector", False),
+             (md.from_data(test_split), "scalar", True)]
+    for model, loops, scalar in cases:
+        assert model.scalar_loops == (scalar if loops is None else model.scalar_loops)
+        compile_step(model, "aot", loops)
+        model.bind(test_split)
+        st = model.initial_state(test_split, np.zeros(1, dtype=int), model.history)
+        ctrl = torch.from_numpy(test_split.ctrl[:1, model.history])
+        model.step(st, ctrl)  # the first step of a binding runs eagerly
+        with pytest.raises(ModelError, match="does not compile ahead of time"):
+            model.step(st, ctrl)
+        assert (options[-1].get("cpp.simdlen") == 1) == scalar
+        assert options[-1]["max_fusion_size"] == 4096  # the other options kept
+    with pytest.raises(ValueError, match="loops 'wide' is not one of vector, scalar"):
+        compile_step(md.from_data(test_split), "aot", "wide")
+
+
+@pytest.mark.skipif(not any(__import__("shutil").which(c) for c in ("cc", "gcc", "clang")),
+                    reason="torch.compile on a CPU needs a C compiler")
+def test_a_step_compiled_with_scalar_loops_rolls_out_the_eager_trajectories(test_split):
+    """``loops="scalar"`` changes how inductor writes the loops, not what they compute: constant twist compiled so
+    rolls out as its eager step (the same float32 tolerance as the vector loops' test above)."""
+    from mdgs.models import compile_step
+
+    ref = MODELS["constant-twist"].from_data(test_split)
+    eager = rollout(ref, test_split, "cpu")
+    compile_step(ref, "inductor", "scalar")
+    np.testing.assert_allclose(rollout(ref, test_split, "cpu").x, eager.x, rtol=0, atol=1e-5)
+
+
 def test_cuda_graphs_are_refused_on_the_cpu_and_the_cost_falls_back_to_inductor(test_split):
     """``compile_step(model, "cudagraphs")`` needs a CUDA device: on the CPU one ModelError naming the
     device and the other modes; ``compiled_cost`` then times the next mode that works and says why."""

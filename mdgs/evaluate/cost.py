@@ -63,7 +63,7 @@ def step_cost(model: Simulator, d: SplitData, batch: int = 1, frames: int = 20, 
             "frames": int(frames), "repeats": int(repeats)}
 
 
-def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batched: int = 0) -> dict:
+def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batched: int = 0, loops: str | None = None) -> dict:
     """:func:`step_cost` of ``model`` at one trajectory and at a batch of ``batched`` trajectories of ``d``
     (0: all of them), with its step compiled by ``mode`` ("none": the eager step; "inductor", "aot",
     "cudagraphs": as :func:`mdgs.models.compile_step`).
@@ -73,8 +73,10 @@ def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batched: in
     "single", "batched"}``, ``compiled`` the mode that ran, ``note`` why it is not ``requested`` ("" if
     it is). A model that is not torch code (``compilable`` false: MuJoCo) runs as it is, ``compiled``
     "none". Each batch shape is compiled (and its first step run) before its timed repeats, so
-    ``compile_seconds`` holds the compiling and no timing does; a step that compiles again after that
-    (its shapes follow the state) is timed eagerly instead. ``model`` keeps the step timed.
+    ``compile_seconds`` holds the compiling and no timing does; a step that compiles again while it is timed
+    (its shapes follow the state) is timed eagerly instead. ``model`` keeps the step timed, free to compile
+    again for another split or batch shape. ``loops``: as
+    :func:`mdgs.models.compile_step`'s (``None``: the model's choice).
     """
     modes = {"aot": ["aot", "inductor", "none"], "inductor": ["inductor", "none"], "none": ["none"],
              "cudagraphs": ["cudagraphs", "inductor", "none"]}
@@ -91,15 +93,17 @@ def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batched: in
             break
         try:
             t0 = time.perf_counter()
-            compile_step(model, m)
+            compile_step(model, m, loops)
             with quiet_compiler():
                 for b in sizes:  # compile each batch shape (two steps: the first of a binding runs eagerly)
                     step_cost(model, d, batch=b, frames=2, repeats=1)
             t_compile += time.perf_counter() - t0
+            compiled = model.step
             if m in ("inductor", "cudagraphs"):
                 _refuse_recompiles(model)
             out = {"compiled": m, "single": step_cost(model, d, batch=sizes[0]),
                    "batched": step_cost(model, d, batch=sizes[1])}
+            model.step = compiled  # timed; later steps (another split, another batch) may compile again
             break
         except (ModelError, RuntimeError, NotImplementedError, TypeError, ValueError) as e:  # inductor's many
             # failure types; MDGS, GNS and constant twist compile in both modes (benchmarks/bench_models.py)

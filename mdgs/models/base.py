@@ -126,6 +126,17 @@ class Simulator(nn.Module):
     #: makes stale instead of mixing results of two versions of the model.
     revision: ClassVar[int] = 0
 
+    @property
+    def scalar_loops(self) -> bool:
+        """Whether :func:`compile_step` writes this model's compiled step with scalar loops for the CPU (``LOOPS``).
+        True where the step runs the rigid tree's forward dynamics (:func:`mdgs.tree.tree_step`,
+        :func:`mdgs.actuation.coupled_motor_accelerations`): thousands of operations on 3-vectors, rotations and
+        systems of the tree's size, loops shorter than one vector of 16 lanes, each of which pays for its masked
+        remainder when vectorised. A network's loops span its hidden width and keep their vectors
+        (``benchmarks/compiled_dynamics.py --loops vector scalar`` measures both). False unless a model says
+        otherwise."""
+        return False
+
     def __init__(self, config: Any):
         super().__init__()
         self.config = config
@@ -231,9 +242,14 @@ COMPILE_MODES = ("inductor", "aot", "cudagraphs")
 #: by tens of seconds for a few percent of a step, :func:`_aot_step`); a step with more keeps the SVD.
 JACOBI_MAX_FITS = 1
 
+#: How :func:`compile_step` writes a compiled step's loops for the CPU: "vector" (inductor's default: the
+#: instruction set's widest vectors, 16 float lanes with AVX-512) or "scalar" (a vector width, ``cpp.simdlen``,
+#: of one bit, which no instruction set has, so inductor writes scalar loops).
+LOOPS = ("vector", "scalar")
+
 
 @torch.no_grad()
-def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
+def compile_step(model: Simulator, mode: str = "inductor", loops: str | None = None) -> Simulator:
     """Give ``model`` a compiled rollout step (in place; returns the model).
 
     ``mode="inductor"`` (``torch.compile``): ``model.step`` becomes one compiled graph per batch
@@ -277,6 +293,10 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
         raise TypeError(f"compile_step takes a Simulator, not {type(model).__name__}")
     if mode not in COMPILE_MODES:
         raise ValueError(f"compile mode {mode!r} is not one of {', '.join(COMPILE_MODES)}")
+    if loops not in (None, *LOOPS):
+        raise ValueError(f"loops {loops!r} is not one of {', '.join(LOOPS)} (or None: the model's choice)")
+    scalar = model.scalar_loops if loops is None else loops == "scalar"
+    loop_options = {"cpp.simdlen": 1} if scalar and model.device.type == "cpu" else {}
     # dynamo keeps the compiled variants of a step on the code object of the model class's step, shared by
     # every instance: each compiled model adds one per batch shape, and past the limit (8 by default)
     # dynamo would silently run the step eagerly
@@ -294,7 +314,7 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
     # hidden width 100, one trajectory, benchmarks/bench_models.py)
     compiled = None
     if mode == "inductor":
-        compiled = torch.compile(eager, dynamic=False, options={"cpp_wrapper": True})
+        compiled = torch.compile(eager, dynamic=False, options={"cpp_wrapper": True, **loop_options})
     elif mode == "cudagraphs":
         graphed = torch.compile(eager, dynamic=False, mode="reduce-overhead")
 
@@ -329,7 +349,7 @@ def compile_step(model: Simulator, mode: str = "inductor") -> Simulator:
             scenes[model._binds] = _scene_fingerprint(model._split)
         pkey = (scenes[model._binds], *key[1:])
         if pkey not in packages:
-            packages[pkey] = _aot_step(model, eager, state, ctrl)
+            packages[pkey] = _aot_step(model, eager, state, ctrl, loop_options)
         names = key[-1]
         out = packages[pkey](state.x, state.v, ctrl, *(state.extra[k] for k in names))
         return State(out[0], out[1], dict(zip(names, out[2:], strict=True)))
@@ -352,7 +372,7 @@ def _scene_fingerprint(split: SplitData | None) -> str:
     return h.hexdigest()
 
 
-def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor):
+def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor, loop_options: dict):
     """The eager step for ``state``'s batch shape exported and compiled by AOTInductor, loaded: a
     callable ``(x, v, ctrl, *extra) -> (x', v', *extra')``. The package lives in a temporary folder
     removed with the model."""
@@ -377,7 +397,7 @@ def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor):
     # lengthen it as much (the rigid tree fits several times a frame), and a batch shares the SVD's call, so
     # those packages keep the SVD. max_fusion_size lets the fit's ~300 elementwise
     # operations fuse into one loop instead of several that pass ~280 buffers between them.
-    options = {"aot_inductor.use_runtime_constant_folding": True, "max_fusion_size": 4096}
+    options = {"aot_inductor.use_runtime_constant_folding": True, "max_fusion_size": 4096, **loop_options}
     try:
         with torch.no_grad(), folded_weights():
             program = None

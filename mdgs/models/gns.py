@@ -355,6 +355,11 @@ class GNS(Simulator):
         m = sc["moving"].view(1, -1, 1)
         return torch.where(m, xp, x.detach()), torch.where(m, vp, torch.zeros_like(vp))
 
+    @property
+    def scalar_loops(self) -> bool:
+        """With ``prior = "tree"`` the step runs the rigid tree's forward dynamics (:attr:`Simulator.scalar_loops`)."""
+        return self.config.prior == "tree"
+
     def bind(self, split: SplitData) -> None:
         """Use the scene of ``split``: its bodies (node types), floor planes and control map."""
         c = self.config

@@ -654,6 +654,11 @@ class MDGS(Simulator):
             self.z_lo.copy_(lo)
             self.z_hi.copy_(hi)
 
+    @property
+    def scalar_loops(self) -> bool:
+        """With ``actuation = "dynamics"`` the step runs the rigid tree's forward dynamics (:attr:`Simulator.scalar_loops`)."""
+        return self.config.actuation == "dynamics"
+
     def bind(self, split: SplitData) -> None:
         """Use the static graph and control map of ``split`` (same node and actuator counts)."""
         if int(split.ctrl.shape[-1]) != self.config.control_dim:

@@ -136,6 +136,11 @@ class ConstantTwist(Simulator):
     learned = False
     summary = "reference: every body keeps its velocity and angular velocity (no forces)"
 
+    @property
+    def scalar_loops(self) -> bool:
+        """With ``dynamics`` the step is the rigid tree's forward dynamics (:attr:`Simulator.scalar_loops`)."""
+        return self.config.dynamics
+
     def bind(self, split: SplitData) -> None:
         super().bind(split)
         self._scene = SceneGraph.from_static(split.static, has_contact=split.has_contact)
