@@ -281,7 +281,7 @@ def test_compiled_cost_falls_back_mode_by_mode_and_says_why(test_split, monkeypa
 
     real = compile_step
 
-    def refuse(model, mode):
+    def refuse(model, mode, loops=None):
         raise ModelError(f"no {mode} today")
 
     monkeypatch.setattr(cost, "compile_step", refuse)

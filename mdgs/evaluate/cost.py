@@ -93,7 +93,7 @@ def compiled_cost(model: Simulator, d: SplitData, mode: str = "aot", batched: in
             break
         try:
             t0 = time.perf_counter()
-            compile_step(model, m, loops)
+            compile_step(model, m, loops=loops)
             with quiet_compiler():
                 for b in sizes:  # compile each batch shape (two steps: the first of a binding runs eagerly)
                     step_cost(model, d, batch=b, frames=2, repeats=1)
