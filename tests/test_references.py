@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -203,15 +204,18 @@ def test_steps_that_run_the_rigid_tree_compile_with_scalar_loops_unless_told_oth
 
 @pytest.mark.skipif(not any(__import__("shutil").which(c) for c in ("cc", "gcc", "clang")),
                     reason="torch.compile on a CPU needs a C compiler")
-def test_a_step_compiled_with_scalar_loops_rolls_out_the_eager_trajectories(test_split):
-    """``loops="scalar"`` changes how inductor writes the loops, not what they compute: constant twist compiled so
-    rolls out as its eager step (the same float32 tolerance as the vector loops' test above)."""
+def test_a_step_compiled_with_scalar_loops_rolls_out_the_eager_trajectories(test_split, caplog):
+    """``loops="scalar"`` changes how inductor writes the loops, not what they compute: constant twist compiled so,
+    by torch.compile and ahead of time, rolls out as its eager step (the same float32 tolerance as the vector loops'
+    tests above), and loading the package does not warn that it was built for no instruction set."""
     from mdgs.models import compile_step
 
-    ref = MODELS["constant-twist"].from_data(test_split)
-    eager = rollout(ref, test_split, "cpu")
-    compile_step(ref, "inductor", "scalar")
-    np.testing.assert_allclose(rollout(ref, test_split, "cpu").x, eager.x, rtol=0, atol=1e-5)
+    eager = rollout(MODELS["constant-twist"].from_data(test_split), test_split, "cpu")
+    for mode in ("inductor", "aot"):
+        ref = compile_step(MODELS["constant-twist"].from_data(test_split), mode, "scalar")
+        with caplog.at_level(logging.WARNING):
+            np.testing.assert_allclose(rollout(ref, test_split, "cpu").x, eager.x, rtol=0, atol=1e-5)
+    assert not [r for r in caplog.records if "INVALID_VEC_ISA" in r.getMessage()]
 
 
 def test_cuda_graphs_are_refused_on_the_cpu_and_the_cost_falls_back_to_inductor(test_split):

@@ -17,6 +17,8 @@ Every tensor of a :class:`State` is batch-first, so rows of two states can be sp
 
 from __future__ import annotations
 
+import contextlib
+import logging
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, ClassVar
@@ -372,6 +374,23 @@ def _scene_fingerprint(split: SplitData | None) -> str:
     return h.hexdigest()
 
 
+@contextlib.contextmanager
+def _scalar_isa_accepted():
+    """Within this block, loading a package compiled with scalar loops (:data:`LOOPS`) does not warn that its
+    instruction set (none: ``INVALID_VEC_ISA``) differs from the machine's: scalar code runs on any of them."""
+    log = logging.getLogger("torch.export.pt2_archive._package")
+
+    def keep(record: logging.LogRecord) -> bool:
+        return not (isinstance(record.args, tuple) and record.args[:1] == ("AOTI_CPU_ISA",)
+                    and record.args[-1:] == ("INVALID_VEC_ISA",))
+
+    log.addFilter(keep)
+    try:
+        yield
+    finally:
+        log.removeFilter(keep)
+
+
 def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor, loop_options: dict):
     """The eager step for ``state``'s batch shape exported and compiled by AOTInductor, loaded: a
     callable ``(x, v, ctrl, *extra) -> (x', v', *extra')``. The package lives in a temporary folder
@@ -411,7 +430,8 @@ def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor, loop_op
     except Exception as e:  # noqa: BLE001 - torch.export's and inductor's many failure types
         raise ModelError(f"the step of {model.name!r} does not compile ahead of time ({type(e).__name__}: "
                          f"{str(e).splitlines()[0][:120]}); use compile mode 'inductor'") from e
-    package = torch._inductor.aoti_load_package(path)
+    with _scalar_isa_accepted():
+        package = torch._inductor.aoti_load_package(path)
     # the package's own __call__ parses its input and output specs at every call (most of what a call
     # costs); the step's inputs and outputs are flat tuples of tensors, so the loader is called
     # with the flat list directly and its flat list of outputs is the step's tuple
