@@ -9,13 +9,18 @@ of a step does not depend on training), on a ``tiny`` dataset of the scene writt
 folder (:func:`bench_models.tiny_splits`). Printed per model, medians over ``--repeats``:
 
 - ``ms/step``: wall milliseconds per step without the profiler (:func:`mdgs.evaluate.cost.step_cost`,
-  the quantity of the study's speed-accuracy chart; ``cost_step`` where a model has one);
+  the quantity of the study's speed-accuracy chart; ``cost_step`` where a model has one); with ``--compile``, of
+  the step compiled without inductor's per-kernel profiling (below), which costs a compiled step of thousands of
+  small loops several times its own time;
 - under ``torch.profiler`` (a rollout of ``--frames`` steps after two warm-up steps):
   ``prof ms``: wall ms per step with the profiler on (it adds its own cost to every op);
   ``op ms``: the summed self CPU time of all torch ops per step; ``arith %``: the share of that
   time spent in arithmetic ops (below); ``overhead ms``: wall minus summed self CPU time, the time
   outside any torch op: Python, module calls, argument parsing before dispatch (and, for the
-  MuJoCo reference, MuJoCo itself, which is not a torch op);
+  MuJoCo reference, MuJoCo itself, which is not a torch op); ``outside %``: the share of ``ms/step`` not
+  spent in arithmetic ops, ``1 - arith ms / ms/step`` (``arith ms`` the arithmetic ops' summed self time under
+  the profiler, which the profiler's own entries around each op do not enter; 0 where that exceeds
+  ``ms/step``), the quantity of the aim that no model spends more than half its step outside arithmetic;
 - the 8 ops with the most self CPU time per step, ``*`` marking arithmetic ones (``aten::`` left
   out of the names; ``prims::`` ops come from decompositions, e.g. under ``torch.func``).
 
@@ -254,12 +259,12 @@ def main() -> None:
 
         from mdgs.models import compile_step
 
-        inductor_config.cpp.enable_kernel_profile = True  # each fused kernel a profiler entry
         inductor_config.fx_graph_cache = False  # a cached graph compiled without those entries would hide them
     tr, te = tiny_splits(args.scene)
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, batch 1, CPU, 1 torch thread; per step, medians of "
           f"{args.repeats} rollouts of {args.frames} steps" + (f"; compiled steps ({args.compile})" if args.compile else ""))
-    print(f"{'model':22s}{'ms/step':>9s}{'prof ms':>9s}{'op ms':>8s}{'arith %':>9s}{'overhead ms':>13s}")
+    print(f"{'model':22s}{'ms/step':>9s}{'prof ms':>9s}{'op ms':>8s}{'arith %':>9s}{'overhead ms':>13s}"
+          f"{'outside %':>11s}")
     for label, model in chain(registry_models(_names(args), tr, tuple(args.widths)), study_rows(args.study, tr)):
         if isinstance(model, str):
             print(f"{label:22s} refused: {model}")
@@ -267,21 +272,29 @@ def main() -> None:
         if args.compile and not label.startswith("mujoco"):
             model.bind(te)
             try:
+                inductor_config.cpp.enable_kernel_profile = False  # the step's own cost first
+                torch._dynamo.reset()  # a graph compiled for another model (or with profiling) is not reused
                 compile_step(model, args.compile)
-                r = profile_model(model, te, args.frames, args.repeats)
+                ms = step_cost(model, te, batch=1, frames=args.frames, repeats=args.repeats)["ms_per_frame"]
+                inductor_config.cpp.enable_kernel_profile = True  # each fused kernel a profiler entry
+                torch._dynamo.reset()
+                compile_step(model, args.compile)
+                r = {**profile_model(model, te, args.frames, args.repeats), "ms": ms}
             except Exception as e:  # noqa: BLE001 - a step that does not compile is a row saying so
                 print(f"{label:22s} failed to compile ({args.compile}): {type(e).__name__}: "
                       f"{str(e).splitlines()[0][:100] if str(e) else ''}")
                 continue
         else:
             r = profile_model(model, te, args.frames, args.repeats)
+        outside = max(0.0, 1 - r["arith"] * r["op_ms"] / r["ms"])
         print(f"{label:22s}{r['ms']:>9.3f}{r['prof_ms']:>9.3f}{r['op_ms']:>8.3f}{100 * r['arith']:>9.0f}"
-              f"{r['overhead_ms']:>13.3f}")
+              f"{r['overhead_ms']:>13.3f}{100 * outside:>11.0f}")
         print("    top ops (ms/step): " + ", ".join(f"{'*' if is_arithmetic(k) else ''}{k.removeprefix('aten::')} {t:.3f}"
                                                      for k, t in r["top"]), flush=True)
-    print("ms/step: unprofiled; prof ms: wall with the profiler on; op ms: summed self CPU time of torch ops; "
+    print("ms/step: unprofiled" + (" (compiled without per-kernel profiling)" if args.compile else "")
+          + "; prof ms: wall with the profiler on; op ms: summed self CPU time of torch ops; "
           "arith %: its arithmetic share; overhead ms: Python/dispatch overhead (wall outside any torch op); "
-          "* arithmetic op")
+          "outside %: share of ms/step outside arithmetic ops; * arithmetic op")
 
 
 def _main_cuda(args) -> None:

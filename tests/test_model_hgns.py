@@ -13,9 +13,11 @@ from test_model_lgns import (
     G,
     chain_constraints,
     check_cli,
+    check_compiled_steps,
     check_overfit,
     check_shapes_and_constraints,
     micro_data,
+    position_dependent_mass_case,
 )
 
 from mdgs.models.mechanics import hamiltonian_derivatives, rk4
@@ -54,6 +56,20 @@ def test_pendulum_hamiltonian_matches_analytic_and_conserves_energy():
     assert abs(float(torch.linalg.norm(q[0, 0])) - l) < 1e-6
 
 
+def test_a_position_dependent_mass_gets_the_analytic_acceleration_with_its_mixed_term():
+    """``H = |p|^2 / (2 m(q))`` (:func:`test_model_lgns.position_dependent_mass_case`): ``qd = p / m`` and the
+    accelerations worked out by hand, through the mixed term ``(d2H/dp dq) qd``, to float64 round-off."""
+    m0, q, qd, want, jac = position_dependent_mass_case()
+    m = (m0 * (1 + (q[0] ** 2).sum(-1)))[None, :, None]
+
+    def H(q1, p1):
+        return 0.5 * ((p1 ** 2).sum(-1) / (m0 * (1 + (q1 ** 2).sum(-1)))).sum()
+
+    qd_out, _, qdd = hamiltonian_derivatives(H, jac, q, m * qd, torch.zeros_like(q))
+    torch.testing.assert_close(qd_out, qd, rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(qdd[0], want, rtol=1e-12, atol=1e-12)
+
+
 def test_hgns_shapes_and_constraints(micro_data):
     from mdgs.models.hgns import HGNS
 
@@ -65,6 +81,13 @@ def test_hgns_overfits_two_batches(micro_data):
     from mdgs.models.hgns import HGNS
 
     check_overfit(HGNS, micro_data)
+
+
+@pytest.mark.slow
+def test_the_hgns_step_compiles_and_takes_the_eager_steps(micro_data):
+    from mdgs.models.hgns import HGNS
+
+    check_compiled_steps(HGNS, micro_data)
 
 
 def test_hgns_cli_end_to_end(micro_data, tmp_path):

@@ -99,6 +99,34 @@ def test_spring_chain_acceleration_and_energy():
     assert drift < 1e-4 * e0
 
 
+def position_dependent_mass_case():
+    """Two free particles whose mass grows with their distance from the origin, ``m(q) = m0 (1 + |q|^2)``, at a
+    random state (``q``, ``qd`` [1, 2, 3]), and their accelerations from the Euler-Lagrange equations by hand:
+    ``d/dt (m qd) = |qd|^2 grad m / 2`` gives ``qdd = (|qd|^2 grad m / 2 - (grad m . qd) qd) / m``, ``grad m = 2 m0 q``.
+    The mixed term ``(d2L/dqd dq) qd`` is not zero here, as it is for every constant-mass case above."""
+    rng = np.random.default_rng(3)
+    m0 = torch.tensor([1.3, 0.6], dtype=torch.float64)
+    q = torch.tensor(rng.normal(size=(1, 2, 3)))
+    qd = torch.tensor(rng.normal(size=(1, 2, 3)))
+    m = m0 * (1 + (q[0] ** 2).sum(-1))
+    grad = 2 * m0[:, None] * q[0]
+    want = (0.5 * (qd[0] ** 2).sum(-1, keepdim=True) * grad - (grad * qd[0]).sum(-1, keepdim=True) * qd[0]) / m[:, None]
+    jac = lambda q, qd: (q.new_zeros(q.shape[0], 0, 6), q.new_zeros(q.shape[0], 0))  # noqa: E731
+    return m0, q, qd, want, jac
+
+
+def test_a_position_dependent_mass_gets_the_analytic_acceleration_with_its_mixed_term():
+    """``L = m(q) |qd|^2 / 2`` (:func:`position_dependent_mass_case`): the solver's second derivatives, the mixed one
+    included, give the accelerations worked out by hand, to float64 round-off."""
+    m0, q, qd, want, jac = position_dependent_mass_case()
+
+    def L(q1, qd1):
+        return 0.5 * (m0 * (1 + (q1 ** 2).sum(-1)) * (qd1 ** 2).sum(-1)).sum()
+
+    a = lagrangian_acceleration(L, jac, q, qd, torch.zeros_like(q))[0]
+    torch.testing.assert_close(a, want, rtol=1e-12, atol=1e-12)
+
+
 def test_double_pendulum_keeps_bar_lengths_and_energy():
     """Two bars under gravity, 2000 steps of 1 ms (about 1.5 swings): bars hold, energy stays."""
     x0 = np.array([[0.5, 0.0, -0.3], [0.9, 0.2, -0.7]])
@@ -233,6 +261,36 @@ def test_lgns_overfits_two_batches(micro_data):
     from mdgs.models.lgns import LGNS
 
     check_overfit(LGNS, micro_data)
+
+
+def check_compiled_steps(cls, data):
+    """The peer's step compiled by inductor (:func:`mdgs.models.compile_step`), from the recorded states of three frames
+    of two trajectories, takes the eager step to the same state: positions and velocities each to 1e-6 of the largest.
+    That is round-off (the compiled graph adds in another order) as the step magnifies it: perturbed by 1e-15 of
+    itself, an input moves the eager step's output by up to 1e-8 of the largest (HGNS, measured), through the constraint
+    solve, whose ridge (:func:`~mdgs.models.mechanics.solve_multipliers`) admits condition numbers up to 1e12; the
+    compiled step was measured up to 5e-12 (LGNS) and 3e-9 (HGNS) away. Recorded states, not a rollout: untrained,
+    the peers leave the scene within a few steps, where the step magnifies round-off without bound."""
+    from mdgs.models import compile_step
+
+    model, d = _model(cls, data)
+    model.bind(d)
+    with torch.no_grad():
+        states = [model.initial_state(d, np.arange(2), k) for k in range(3)]
+        want = [model.step(s, torch.from_numpy(d.ctrl[:, k])) for k, s in enumerate(states)]
+        compile_step(model, "inductor")
+        model.step(states[0], torch.from_numpy(d.ctrl[:, 0]))  # the first step of a binding runs eagerly
+        for k, s in enumerate(states):
+            out = model.step(s, torch.from_numpy(d.ctrl[:, k]))
+            for got, ref in ((out.x, want[k].x), (out.v, want[k].v)):
+                diff = float((got - ref).abs().max())
+                assert diff <= 1e-6 * float(ref.abs().max()), (k, diff, float(ref.abs().max()))
+
+
+def test_the_lgns_step_compiles_and_takes_the_eager_steps(micro_data):
+    from mdgs.models.lgns import LGNS
+
+    check_compiled_steps(LGNS, micro_data)
 
 
 def test_lgns_cli_end_to_end(micro_data, tmp_path):

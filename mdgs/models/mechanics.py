@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 from torch import nn
-from torch.func import jacfwd, jacrev, jvp, vmap
+from torch.func import jacrev, vmap
 
 __all__ = ["squareplus", "MLP", "NodeMass", "NodePotential", "EdgePotential", "ExternalForces",
            "ConstraintSet", "build_constraints", "lagrangian_acceleration", "hamiltonian_derivatives",
@@ -670,6 +670,11 @@ def lagrangian_acceleration(L, jac, q: torch.Tensor, qd: torch.Tensor, force: to
         M = d2L/dqd2,  f = dL/dq - (d2L/dqd dq) qd + Y                     (Euler-Lagrange)
         J = dPhi/dq,   J qdd = -Jdot qd                                    (holonomic, twice differentiated)
         qdd = M^-1 (f + J^T lambda),  (J M^-1 J^T) lambda = -Jdot qd - J M^-1 f
+
+    Second derivatives by reverse mode over reverse mode (``jacrev`` of ``jacrev``), the mixed term as the
+    product of ``d2L/dqd dq`` with ``qd``: ``torch.compile`` traces these (forward mode over reverse mode, ``jacfwd``
+    and ``jvp``, failed an internal assertion of torch 2.13 while dynamo traced them), and eagerly they cost less, with
+    the same accelerations to the bit (``benchmarks/mdgs_probes/peer_derivatives.py``).
     """
     B, n, _ = q.shape
     D = 3 * n
@@ -677,9 +682,9 @@ def lagrangian_acceleration(L, jac, q: torch.Tensor, qd: torch.Tensor, force: to
 
     def one(q1, qd1):
         gq = jacrev(L, argnums=0)(q1, qd1)
-        M = jacfwd(dLdv, argnums=1)(q1, qd1).reshape(D, D)
-        mixed = jvp(lambda z: dLdv(z, qd1), (q1,), (qd1,))[1]  # (d2L/dqd dq) qd
-        return (gq - mixed).reshape(D), M
+        M = jacrev(dLdv, argnums=1)(q1, qd1).reshape(D, D)
+        mixed = jacrev(dLdv, argnums=0)(q1, qd1).reshape(D, D) @ qd1.reshape(D)  # (d2L/dqd dq) qd
+        return gq.reshape(D) - mixed, M
 
     f, M = vmap(one)(q, qd)
     J, Jdqd = jac(q, qd)
@@ -702,7 +707,8 @@ def hamiltonian_derivatives(H, jac, q: torch.Tensor, p: torch.Tensor, force: tor
         qdd = (d2H/dp2) pd + (d2H/dp dq) qd
         => (J H_pp J^T) lambda = -Jdot qd - J H_pq qd - J H_pp (-dH/dq + Y)
 
-    ``qdd`` is returned for the training loss (the acceleration the data measures).
+    ``qdd`` is returned for the training loss (the acceleration the data measures). Second derivatives by reverse mode
+    twice, as :func:`lagrangian_acceleration`'s.
     """
     B, n, _ = q.shape
     D = 3 * n
@@ -710,10 +716,10 @@ def hamiltonian_derivatives(H, jac, q: torch.Tensor, p: torch.Tensor, force: tor
 
     def one(q1, p1):
         Hq = jacrev(H, argnums=0)(q1, p1)
-        qd1 = dHdp(q1, p1)
-        Hpp = jacfwd(dHdp, argnums=1)(q1, p1).reshape(D, D)
-        mixed = jvp(lambda z: dHdp(z, p1), (q1,), (qd1,))[1]  # H_pq qd
-        return qd1.reshape(D), Hq.reshape(D), Hpp, mixed.reshape(D)
+        qd1 = dHdp(q1, p1).reshape(D)
+        Hpp = jacrev(dHdp, argnums=1)(q1, p1).reshape(D, D)
+        mixed = jacrev(dHdp, argnums=0)(q1, p1).reshape(D, D) @ qd1  # H_pq qd
+        return qd1, Hq.reshape(D), Hpp, mixed
 
     qd, Hq, Hpp, mixed = vmap(one)(q, p)
     J, Jdqd = jac(q, qd.view(B, n, 3))
