@@ -20,7 +20,8 @@ folder (:func:`bench_models.tiny_splits`). Printed per model, medians over ``--r
   MuJoCo reference, MuJoCo itself, which is not a torch op); ``outside %``: the share of ``ms/step`` not
   spent in arithmetic ops, ``1 - arith ms / ms/step`` (``arith ms`` the arithmetic ops' summed self time under
   the profiler, which the profiler's own entries around each op do not enter; 0 where that exceeds
-  ``ms/step``), the quantity of the aim that no model spends more than half its step outside arithmetic;
+  ``ms/step``), the quantity of the aim that no model spends more than half its step outside arithmetic ("-"
+  for MuJoCo, whose step is C code the profiler does not see into);
 - the 8 ops with the most self CPU time per step, ``*`` marking arithmetic ones (``aten::`` left
   out of the names; ``prims::`` ops come from decompositions, e.g. under ``torch.func``).
 
@@ -47,8 +48,10 @@ replaying a graph are logged as they happen and the breaks counted at the end.
 
 ``--compile`` profiles the ``torch.compile``d step (:func:`mdgs.models.compile_step`, compiled with
 inductor's per-kernel profiling on); ``--compile aot`` the step compiled ahead of time (AOTInductor, the
-same per-kernel profiling, no dynamo guards at call time; models whose step does not export are a row
-saying so). Each fused C++ kernel of the compiled graph
+same per-kernel profiling, no dynamo guards at call time). A step that does not compile so runs in the next mode
+that works, as on the study's cost axis (:func:`mdgs.evaluate.cost.compiled_cost`: aot, then inductor, then eager;
+a step that compiles again at every step counts as not compiling), its row labelled with that mode and preceded by
+a line saying why. Each fused C++ kernel of the compiled graph
 (``graph_<k>_cpp_fused_<ops>``) counts as arithmetic, as do the library calls it makes
 (``aoti_torch_cpu_<op>_out``, classified by ``<op>``); the compiled graph's own entry
 (``## Call CompiledFxGraph``: its C++ launcher and buffer allocations), dynamo's guard check
@@ -72,7 +75,7 @@ import torch
 from bench_models import registry_models, study_rows, tiny_splits
 from torch.profiler import ProfilerActivity, profile
 
-from mdgs.evaluate.cost import step_cost
+from mdgs.evaluate.cost import compiled_cost, step_cost
 from mdgs.models import MODELS
 
 #: Regexes on the op name (without ``aten::``) of the ops that count as arithmetic (module docstring).
@@ -269,26 +272,28 @@ def main() -> None:
         if isinstance(model, str):
             print(f"{label:22s} refused: {model}")
             continue
-        if args.compile and not label.startswith("mujoco"):
+        if args.compile and model.compilable:
             model.bind(te)
-            try:
-                inductor_config.cpp.enable_kernel_profile = False  # the step's own cost first
-                torch._dynamo.reset()  # a graph compiled for another model (or with profiling) is not reused
-                compile_step(model, args.compile)
-                ms = step_cost(model, te, batch=1, frames=args.frames, repeats=args.repeats)["ms_per_frame"]
+            # the step's own cost first, compiled without per-kernel profiling, in the first mode that works for it
+            # (aot -> inductor -> none, as the study's cost axis: compiled_cost), then profiled compiled so again
+            inductor_config.cpp.enable_kernel_profile = False
+            torch._dynamo.reset()  # a graph compiled for another model (or with profiling) is not reused
+            cost = compiled_cost(model, te, args.compile, batched=1)
+            ms, ran = cost["single"]["ms_per_frame"], cost["compiled"]
+            if ran != args.compile:
+                print(f"{label:22s} runs as {ran!r}: {cost['note'][:150]}")
+            model.step = type(model).step.__get__(model)
+            if ran != "none":
                 inductor_config.cpp.enable_kernel_profile = True  # each fused kernel a profiler entry
                 torch._dynamo.reset()
-                compile_step(model, args.compile)
-                r = {**profile_model(model, te, args.frames, args.repeats), "ms": ms}
-            except Exception as e:  # noqa: BLE001 - a step that does not compile is a row saying so
-                print(f"{label:22s} failed to compile ({args.compile}): {type(e).__name__}: "
-                      f"{str(e).splitlines()[0][:100] if str(e) else ''}")
-                continue
+                compile_step(model, ran)
+            r = {**profile_model(model, te, args.frames, args.repeats), "ms": ms}
+            label = label if ran == args.compile else f"{label} ({ran})"
         else:
             r = profile_model(model, te, args.frames, args.repeats)
-        outside = max(0.0, 1 - r["arith"] * r["op_ms"] / r["ms"])
+        outside = f"{100 * max(0.0, 1 - r['arith'] * r['op_ms'] / r['ms']):.0f}" if model.compilable else "-"
         print(f"{label:22s}{r['ms']:>9.3f}{r['prof_ms']:>9.3f}{r['op_ms']:>8.3f}{100 * r['arith']:>9.0f}"
-              f"{r['overhead_ms']:>13.3f}{100 * outside:>11.0f}")
+              f"{r['overhead_ms']:>13.3f}{outside:>11s}")
         print("    top ops (ms/step): " + ", ".join(f"{'*' if is_arithmetic(k) else ''}{k.removeprefix('aten::')} {t:.3f}"
                                                      for k, t in r["top"]), flush=True)
     print("ms/step: unprofiled" + (" (compiled without per-kernel profiling)" if args.compile else "")

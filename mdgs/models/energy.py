@@ -230,6 +230,10 @@ class EnergyPeer(Simulator):
         w = ctrl.to(x.dtype)[:, :, None] * b["sign"][None]  # [B, nu, N]
         return torch.einsum("bkn,bkni->bni", w, g)
 
+    # eager inside a compiled step: the contact edges change in number from step to step, and each new number would
+    # compile the code after them anew (dynamo's shapes are static here, mdgs.models.compile_step); the double
+    # differentiation around it, most of the step's cost, compiles once
+    @torch.compiler.disable
     def external_forces(self, b: dict, x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor) -> torch.Tensor:
         """Learned non-conservative forces on all nodes [B, N, 3] at full positions ``x``, velocities ``v``."""
         c = self.config
