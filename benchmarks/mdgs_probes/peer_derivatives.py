@@ -20,9 +20,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +28,7 @@ import torch
 from torch.func import jacfwd, jacrev, jvp, vmap
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench_models import tiny_splits  # noqa: E402
+from bench_models import median_time, tiny_splits  # noqa: E402
 
 import mdgs.models.hgns as hgns  # noqa: E402
 import mdgs.models.lgns as lgns  # noqa: E402
@@ -102,13 +100,8 @@ def way(name: str):
 
 
 def median_ms(fn, repeats: int) -> float:
-    fn()
-    ts = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return 1e3 * statistics.median(ts)
+    """Median milliseconds of ``fn()`` over ``repeats`` calls after one warm-up call."""
+    return 1e3 * median_time(fn, repeats, warmup=1)
 
 
 def main() -> None:
