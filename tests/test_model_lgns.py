@@ -271,6 +271,8 @@ def check_compiled_steps(cls, data):
     solve, whose ridge (:func:`~mdgs.models.mechanics.solve_multipliers`) admits condition numbers up to 1e12; the
     compiled step was measured up to 5e-12 (LGNS) and 3e-9 (HGNS) away. Recorded states, not a rollout: untrained,
     the peers leave the scene within a few steps, where the step magnifies round-off without bound."""
+    from torch._dynamo.utils import counters
+
     from mdgs.models import compile_step
 
     model, d = _model(cls, data)
@@ -280,11 +282,13 @@ def check_compiled_steps(cls, data):
         want = [model.step(s, torch.from_numpy(d.ctrl[:, k])) for k, s in enumerate(states)]
         compile_step(model, "inductor")
         model.step(states[0], torch.from_numpy(d.ctrl[:, 0]))  # the first step of a binding runs eagerly
+        graphs = counters["stats"]["unique_graphs"]
         for k, s in enumerate(states):
             out = model.step(s, torch.from_numpy(d.ctrl[:, k]))
             for got, ref in ((out.x, want[k].x), (out.v, want[k].v)):
                 diff = float((got - ref).abs().max())
                 assert diff <= 1e-6 * float(ref.abs().max()), (k, diff, float(ref.abs().max()))
+    assert counters["stats"]["unique_graphs"] > graphs  # the steps ran compiled graphs, not the eager code
 
 
 def test_the_lgns_step_compiles_and_takes_the_eager_steps(micro_data):
