@@ -14,6 +14,7 @@ from test_model_lgns import (
     chain_constraints,
     check_cli,
     check_compiled_steps,
+    check_one_graph,
     check_overfit,
     check_shapes_and_constraints,
     micro_data,
@@ -88,6 +89,12 @@ def test_the_hgns_step_compiles_and_takes_the_eager_steps(micro_data):
     from mdgs.models.hgns import HGNS
 
     check_compiled_steps(HGNS, micro_data)
+
+
+def test_the_hgns_step_traces_as_one_graph(micro_data):
+    from mdgs.models.hgns import HGNS
+
+    check_one_graph(HGNS, micro_data)
 
 
 def test_hgns_cli_end_to_end(micro_data, tmp_path):

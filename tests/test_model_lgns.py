@@ -237,17 +237,80 @@ def check_cli(name, data, tmp_path):
 
 def test_dependent_constraints_get_the_minimum_norm_multipliers_instead_of_an_error():
     """Two copies of one constraint make ``J M^-1 J^T`` exactly singular: ``torch.linalg.solve`` raises
-    on it (as it did on a GPU at batch 256); the multipliers are then the pseudo-inverse's minimum-norm
-    solution, which splits the force evenly over the copies (the textbook answer for redundant
-    constraints), and a solvable row of the same batch keeps its exact solution."""
+    on it (as it did on a GPU at batch 256); the sample is then solved again with a ridge of 1e-8 of its mean diagonal
+    (``SINGULAR_RIDGE``), which gives the pseudo-inverse's minimum-norm multipliers to about that relative distance
+    (here ``2 / (2 + 1e-8)`` each: the force split evenly over the copies, the textbook answer for redundant
+    constraints), hence the 1e-7 tolerance; a solvable sample of the same batch keeps the plain solve's multipliers
+    to the bit, and the gradient through the batch stays finite (the singular sample's first factorisation, with
+    its infinite values, reaches neither)."""
     J = torch.tensor([[[1.0, 0.0], [1.0, 0.0]], [[1.0, 0.0], [0.0, 2.0]]], dtype=torch.float64)  # [B=2, m=2, D=2]
-    Minv_JT = J.transpose(1, 2)  # M = I
+    Minv_JT = J.transpose(1, 2).clone().requires_grad_()  # M = I
     rhs = torch.tensor([[2.0, 2.0], [3.0, 8.0]], dtype=torch.float64)
     with pytest.raises(RuntimeError, match="singular"):
-        torch.linalg.solve(J @ Minv_JT, rhs.unsqueeze(-1))
+        torch.linalg.solve(J @ Minv_JT.detach(), rhs.unsqueeze(-1))
     lam = solve_multipliers(Minv_JT, J, rhs, eps=0.0)
-    torch.testing.assert_close(lam[0], torch.tensor([1.0, 1.0], dtype=torch.float64))  # 1 + 1 = 2 on each row
-    torch.testing.assert_close(lam[1], torch.tensor([3.0, 2.0], dtype=torch.float64))  # diag(1, 4) lam = (3, 8)
+    torch.testing.assert_close(lam[0].detach(), torch.tensor([1.0, 1.0], dtype=torch.float64), rtol=0, atol=1e-7)
+    plain = torch.linalg.solve(J[1:] @ Minv_JT.detach()[1:], rhs[1:].unsqueeze(-1))[0, :, 0]
+    assert torch.equal(lam[1].detach(), plain) and torch.equal(plain, torch.tensor([3.0, 2.0], dtype=torch.float64))
+    lam.sum().backward()
+    assert torch.isfinite(Minv_JT.grad).all()
+
+
+def check_one_graph(cls, data):
+    """The peer's rollout step traces as one graph with no graph break (dynamo alone, no inductor): each break is a
+    region entered from Python at every step, which was most of the energy peers' compiled step (a check on the host
+    for a singular system in every solve, the contact edges' data-dependent number; docs/results.md)."""
+    model, d = _model(cls, data)
+    model.bind(d)
+    s = model.initial_state(d, np.arange(2), 0)
+    ctrl = torch.from_numpy(d.ctrl[:, 0])
+    eager = type(model).step.__get__(model)
+    with torch.no_grad():
+        eager(s, ctrl)  # the first step fills the scene's caches, as compile_step's first (eager) step does
+        ex = torch._dynamo.explain(eager)(s, ctrl)
+    assert ex.graph_break_count == 0, [b.reason.splitlines()[0] for b in ex.break_reasons]
+    assert ex.graph_count == 1
+
+
+def test_the_lgns_step_traces_as_one_graph(micro_data):
+    from mdgs.models.lgns import LGNS
+
+    check_one_graph(LGNS, micro_data)
+
+
+@pytest.mark.parametrize("name", ["lgns", "hgns"])
+def test_masked_contact_candidates_give_the_contact_edge_forces_and_gradients(micro_data, name, monkeypatch):
+    """The energy peers' fixed-shape contact path (every candidate pair, masked to those within the contact radius;
+    ``DENSE_CONTACT_MAX_PAIRS``) gives the forces and the parameter gradients of the edge list of the pairs in
+    contact (:func:`mdgs.graphs.contact_edges`, the path above the bound), on every recorded frame of the micro Cubli,
+    each to 1e-12 of its largest entry over all nodes (forces) or all the contact MLP's parameters (gradients; the
+    output bias's gradient is a near-cancelling sum of the antisymmetric pair forces, 1e-17 of the largest): round-off,
+    measured 3e-16 (the contact MLP multiplies a different number of rows; the masked pairs add exact zeros). The frames must have pairs in contact and candidates out of it, or the mask would decide nothing."""
+    import mdgs.models.energy as energy
+    from mdgs.graphs import contact_edges
+    from mdgs.models import MODELS
+
+    model, d = _model(MODELS[name], micro_data)
+    model.bind(d)
+    b = model.bound("cpu")
+    x = torch.from_numpy(d.x.reshape(-1, *d.x.shape[2:])).double()
+    v = torch.from_numpy(d.v.reshape(-1, *d.v.shape[2:])).double()
+    ctrl = torch.from_numpy(d.ctrl.reshape(-1, d.ctrl.shape[-1]))
+    n_edges = contact_edges(x, b["scene"].obj, b["scene"].contact_radius, b["scene"].static).shape[1]
+    assert 0 < n_edges < b["pairs"].shape[1] * len(x) and b["pairs"].shape[1] <= energy.DENSE_CONTACT_MAX_PAIRS
+
+    def forces_and_grads():
+        model.zero_grad()
+        f = model.external_forces(b, x, v, ctrl)
+        f.square().sum().backward()
+        return f.detach(), [p.grad.clone() for p in model.forces.contact.parameters()]
+
+    masked, g_masked = forces_and_grads()
+    monkeypatch.setattr(energy, "DENSE_CONTACT_MAX_PAIRS", 0)
+    listed, g_listed = forces_and_grads()
+    torch.testing.assert_close(masked, listed, rtol=0, atol=1e-12 * float(listed.abs().max()))
+    g_masked, g_listed = torch.cat([g.flatten() for g in g_masked]), torch.cat([g.flatten() for g in g_listed])
+    torch.testing.assert_close(g_masked, g_listed, rtol=0, atol=1e-12 * float(g_listed.abs().max()))
 
 
 def test_lgns_shapes_and_constraints(micro_data):

@@ -52,7 +52,7 @@ def lagrangian_acceleration_forward(L, jac, q, qd, force):
     f, M = vmap(one)(q, qd)
     J, Jdqd = jac(q, qd)
     f = f + force.reshape(B, D)
-    sol = mech._solve_mass(M, torch.cat([f.unsqueeze(-1), J.transpose(1, 2)], -1))
+    sol = mech._solve(M, torch.cat([f.unsqueeze(-1), J.transpose(1, 2)], -1))
     Minv_f, Minv_JT = sol[..., 0], sol[..., 1:]
     if J.shape[1]:
         lam = mech.solve_multipliers(Minv_JT, J, -Jdqd - (J @ Minv_f.unsqueeze(-1))[..., 0])

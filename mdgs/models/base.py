@@ -260,8 +260,8 @@ def compile_step(model: Simulator, mode: str = "inductor", loops: str | None = N
     round-off (bit-identical for MDGS and constant twist, 1e-6 m apart for GNS over a rollout:
     benchmarks/bench_models.py ``--compile`` compares the two rollouts; a step of LGNS or HGNS, which differentiate
     inside the step with ``torch.func``, measured to 3e-9 of the largest state, tests/test_model_lgns.py). Where
-    dynamo cannot trace (a graph break: the energy peers' check for a singular system, their contact forces, MuJoCo's
-    C code) the code runs eagerly. Binding the model again (as :func:`~mdgs.evaluate.rollout.rollout` and
+    dynamo cannot trace (a graph break: MuJoCo's C code, the energy peers' contact edges in a scene too large for
+    their masked candidate pairs) the code runs eagerly. Binding the model again (as :func:`~mdgs.evaluate.rollout.rollout` and
     :func:`~mdgs.evaluate.cost.step_cost` do) reuses the compiled graphs (tests/test_references.py).
 
     ``mode="aot"`` (AOTInductor): the step of each scene and batch shape is exported

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from mdgs.data.split import SplitData
-from mdgs.graphs import SceneGraph, contact_edges
+from mdgs.graphs import SceneGraph, batch_edges, contact_candidates, contact_edges, dense_contacts
 from mdgs.models.base import Batch, ModelError, Simulator
 from mdgs.models.mechanics import (
     EdgePotential,
@@ -40,10 +40,16 @@ from mdgs.models.mechanics import (
 )
 from mdgs.structure import align_to_reference
 
-__all__ = ["EnergyConfig", "EnergyPeer", "N_PROPERTIES"]
+__all__ = ["EnergyConfig", "EnergyPeer", "N_PROPERTIES", "DENSE_CONTACT_MAX_PAIRS"]
 
 #: Static node properties k_i: mass, volume, tau, object type one-hot (3) (as MDGS's k_i).
 N_PROPERTIES = 6
+
+#: Scenes with at most this many contact candidate pairs (ordered node pairs of different objects, not both
+#: static) evaluate the contact force on every candidate, masked (:meth:`EnergyPeer.external_forces`): a fixed
+#: shape, so the step compiles as one graph. The bound keeps the masked pairs' work and memory small (at batch 256,
+#: 4096 pairs hold 1M rows of contact features); the paper's scenes have 858-1024.
+DENSE_CONTACT_MAX_PAIRS = 4096
 
 
 @dataclass(frozen=True)
@@ -170,6 +176,7 @@ class EnergyPeer(Simulator):
         self._host = {"scene": scene, "cs": cs, "xref": torch.from_numpy(info["xref"]),
                       "mov": torch.from_numpy(np.where(~st)[0]), "static": torch.from_numpy(st),
                       "edges": torch.as_tensor(edges, dtype=torch.long).reshape(-1, 2),
+                      "pairs": torch.stack(torch.nonzero(contact_candidates(scene.obj, scene.static), as_tuple=True)),
                       "sign": torch.from_numpy(np.asarray(split.control_sign, np.float64))}
         self._bound = {}
 
@@ -182,7 +189,7 @@ class EnergyPeer(Simulator):
             h = self._host
             self._bound[key] = {"scene": h["scene"].to(dev), "cs": h["cs"].to(dev), "xref": h["xref"].to(dev),
                                 "mov": h["mov"].to(dev), "static": h["static"].to(dev),
-                                "edges": h["edges"].to(dev), "sign": h["sign"].to(dev)}
+                                "edges": h["edges"].to(dev), "pairs": h["pairs"].to(dev), "sign": h["sign"].to(dev)}
         return self._bound[key]
 
     def config_dict(self) -> dict:
@@ -230,21 +237,41 @@ class EnergyPeer(Simulator):
         w = ctrl.to(x.dtype)[:, :, None] * b["sign"][None]  # [B, nu, N]
         return torch.einsum("bkn,bkni->bni", w, g)
 
-    # eager inside a compiled step: the contact edges change in number from step to step, and each new number would
-    # compile the code after them anew (dynamo's shapes are static here, mdgs.models.compile_step); the double
-    # differentiation around it, most of the step's cost, compiles once
-    @torch.compiler.disable
     def external_forces(self, b: dict, x: torch.Tensor, v: torch.Tensor, ctrl: torch.Tensor) -> torch.Tensor:
-        """Learned non-conservative forces on all nodes [B, N, 3] at full positions ``x``, velocities ``v``."""
+        """Learned non-conservative forces on all nodes [B, N, 3] at full positions ``x``, velocities ``v``.
+
+        Contact: where the scene has at most :data:`DENSE_CONTACT_MAX_PAIRS` candidate pairs (nodes of different
+        objects, not both static), the contact MLP acts on every candidate pair and a mask keeps those closer than
+        the contact radius (:func:`mdgs.graphs.dense_contacts`, the rule of :func:`mdgs.graphs.contact_edges`), so
+        the step has no data-dependent shape and compiles as one graph; on the paper's scenes the pairs in contact
+        are most of the candidates (a test trajectory of the tiny Cubli: 692 of 1024 per frame on average). A larger scene takes the edge
+        list of the pairs in contact (:meth:`_contact_edge_list`)."""
         c = self.config
         scene = b["scene"]
         k = self.node_properties(b)
-        edges = None
+        edges = mask = None
         if c.contact and scene.has_contact:
-            edges = contact_edges(x.detach(), scene.obj, scene.contact_radius, scene.static)
+            pairs = b["pairs"]
+            if pairs.shape[1] <= DENSE_CONTACT_MAX_PAIRS:
+                B, N, _ = x.shape
+                near = dense_contacts(x.detach(), scene.obj, scene.contact_radius,
+                                      candidates=scene.contact_candidates(x.device))  # [B, N, N]
+                mask = near[:, pairs[0], pairs[1]].reshape(-1)
+                edges = batch_edges(pairs, N, B)
+            else:
+                edges = self._contact_edge_list(x.detach(), scene)
         vn = v / c.v_std
         xn = (x - self.x_mean) / self.x_std
-        return self.forces(vn, xn, k, self.actuation_features(b, x, ctrl), edges, x, v, scene.contact_radius, c.v_std)
+        return self.forces(vn, xn, k, self.actuation_features(b, x, ctrl), edges, x, v, scene.contact_radius, c.v_std,
+                           mask)
+
+    # eager inside a compiled step: the contact edges change in number from step to step, and each new number would
+    # compile the code after them anew (dynamo's shapes are static here, mdgs.models.compile_step)
+    @staticmethod
+    @torch.compiler.disable
+    def _contact_edge_list(x: torch.Tensor, scene: SceneGraph) -> torch.Tensor:
+        """The contact edges [2, E] of positions ``x`` [B, N, 3] (:func:`mdgs.graphs.contact_edges`)."""
+        return contact_edges(x, scene.obj, scene.contact_radius, scene.static)
 
     def moving_forces(self, b: dict, q: torch.Tensor, qd: torch.Tensor, ctrl: torch.Tensor) -> torch.Tensor:
         """:meth:`external_forces` at moving coordinates, restricted to the moving nodes [B, n, 3]."""

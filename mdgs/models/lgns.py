@@ -31,8 +31,8 @@ Deviations from the original, each for a stated reason (also in docs/peers/lgns.
    hold contact, friction, damping or motor torques, so leaving them out would make every
    scene with a floor or an actuator unlearnable.
 4. Masses are learned per node from the node's static properties (positive, softplus), which
-   keeps ``M`` positive definite; the pseudo-inverse fallback of the original is kept for a
-   singular ``M`` but is not reached.
+   keeps ``M`` positive definite; a singular ``M`` (the original falls back to the pseudo-inverse)
+   would be solved with a small ridge (:func:`~mdgs.models.mechanics.solve_multipliers`' rule) but is not reached.
 5. The edge potential acts on joint edges only (each body's node nearest a joint and its
    parent's): edges inside a rigid body have constant length, so their potential is constant.
 6. Loss: node accelerations (as the original), here the recorded frames' finite difference.

@@ -151,7 +151,12 @@ class ExternalForces(nn.Module):
 
     def forward(self, vn: torch.Tensor, xn: torch.Tensor, k: torch.Tensor, act: torch.Tensor,
                 edges: torch.Tensor | None, x: torch.Tensor, v: torch.Tensor, radius: float,
-                v_std: float) -> torch.Tensor:
+                v_std: float, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """Node forces [B, N, 3] from normalised velocities ``vn``, positions ``xn`` [B, N, 3], properties ``k``
+        [N, d_k], actuation features ``act`` [B, N, 3] and the contact ``edges`` [2, E] over the batched node index
+        ``b N + i`` (both directions, sorted by source then target). With ``mask`` [E] bool the edges are
+        candidates of a fixed number and only those it marks act (the others' forces are zero): the same forces as
+        the edge list of the marked ones, with no data-dependent shape (a step that compiles as one graph)."""
         B, N, _ = x.shape
         kk = k.expand(B, N, -1)
         f = self.f_scale * self.node(torch.cat([vn, xn, kk, act], -1))
@@ -161,6 +166,8 @@ class ExternalForces(nn.Module):
             d = (xf[j] - xf[i]) / radius
             feat = torch.cat([d, torch.linalg.norm(d, dim=-1, keepdim=True), (vf[j] - vf[i]) / v_std, kf[i], kf[j]], -1)
             fij = 0.5 * self.f_scale * self.contact(feat)
+            if mask is not None:
+                fij = torch.where(mask[:, None], fij, 0.0)
             fc = torch.zeros_like(xf).index_add_(0, i, fij).index_add_(0, j, -fij)
             f = f + fc.view(B, N, 3)
         return f
@@ -633,31 +640,39 @@ def _select(bld: _Builder, n_rigid: int, static: np.ndarray, act: list) -> tuple
 
 # --- solvers -----------------------------------------------------------------------------------------
 
+#: Relative ridge (of the mean absolute diagonal) with which a system whose LU factorisation meets an exactly zero pivot
+#: is solved again (:func:`_solve`): its solution is then within about this relative distance of the pseudo-inverse's
+#: minimum-norm solution (a symmetric positive semi-definite system with a consistent right-hand side).
+SINGULAR_RIDGE = 1e-8
+
+
+def _solve(A: torch.Tensor, B: torch.Tensor) -> torch.Tensor:
+    """``A^-1 B`` ([b, k, k], [b, k, r]); a sample whose LU factorisation meets an exactly zero pivot is solved again
+    with :data:`SINGULAR_RIDGE` times its mean absolute diagonal added to the diagonal, instead of raising.
+
+    Branch-free, so a compiled step holding it stays one graph (a check on the host, ``if info.any()``, broke the
+    energy peers' compiled steps into one region per solve): every system is factorised twice, the second time with
+    the ridge where the first met a zero pivot and unchanged elsewhere (adding zero), so a solvable system's solution
+    is the plain solve's to the bit. The first factorisation's result is used only for its pivot check, so no
+    infinite value of a singular sample reaches the solution or its gradient."""
+    bad = torch.linalg.lu_factor_ex(A).info != 0
+    ridge = SINGULAR_RIDGE * A.diagonal(dim1=-2, dim2=-1).abs().mean(-1).clamp_min(1e-300)
+    eye = torch.eye(A.shape[-1], dtype=A.dtype, device=A.device)
+    return torch.linalg.solve_ex(A + torch.where(bad, ridge, 0.0)[:, None, None] * eye, B)[0]
+
+
 def solve_multipliers(Minv_JT: torch.Tensor, J: torch.Tensor, rhs: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:
     """``lambda`` of ``(J M^-1 J^T) lambda = rhs`` ([B, m]); a relative ``eps`` ridge keeps it solvable
     where the constraints become dependent (a damped pseudo-inverse). Where the factorisation still
-    reports an exactly zero pivot (seen on a GPU at batch 256 and 4096 with the CPU's states solving
-    fine; why is not established), the whole batch takes the pseudo-inverse's minimum-norm solution
-    instead of raising (the whole batch: a ``where`` over a NaN branch would put NaN into the
-    gradients)."""
+    meets an exactly zero pivot (seen on a GPU at batch 256 and 4096 with the CPU's states solving
+    fine; why is not established), that sample is solved again with a larger ridge (:func:`_solve`): the
+    minimum-norm multipliers to about :data:`SINGULAR_RIDGE`, relative."""
     A = J @ Minv_JT
     if A.shape[-1] == 0:
         return rhs
     ridge = eps * A.diagonal(dim1=-2, dim2=-1).abs().mean(-1).clamp_min(1e-300)
     A = A + ridge[:, None, None] * torch.eye(A.shape[-1], dtype=A.dtype, device=A.device)
-    sol, info = torch.linalg.solve_ex(A, rhs.unsqueeze(-1))
-    if bool((info != 0).any()):
-        sol = torch.linalg.pinv(A) @ rhs.unsqueeze(-1)
-    return sol[..., 0]
-
-
-def _solve_mass(M: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """``M^-1 b`` ([B, D, D], [B, D, K]); the pseudo-inverse for a singular ``M``."""
-    sol, info = torch.linalg.solve_ex(M, b)
-    bad = info != 0
-    if bool(bad.any()):
-        sol = torch.where(bad[:, None, None], torch.linalg.pinv(M) @ b, sol)
-    return sol
+    return _solve(A, rhs.unsqueeze(-1))[..., 0]
 
 
 def lagrangian_acceleration(L, jac, q: torch.Tensor, qd: torch.Tensor, force: torch.Tensor) -> torch.Tensor:
@@ -690,7 +705,7 @@ def lagrangian_acceleration(L, jac, q: torch.Tensor, qd: torch.Tensor, force: to
     J, Jdqd = jac(q, qd)
     f = f + force.reshape(B, D)
     rhs = torch.cat([f.unsqueeze(-1), J.transpose(1, 2)], -1)
-    sol = _solve_mass(M, rhs)
+    sol = _solve(M, rhs)  # a singular M (not reached with the peers' positive masses) is solved with a ridge
     Minv_f, Minv_JT = sol[..., 0], sol[..., 1:]
     if J.shape[1]:
         lam = solve_multipliers(Minv_JT, J, -Jdqd - (J @ Minv_f.unsqueeze(-1))[..., 0])
