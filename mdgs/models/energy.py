@@ -244,8 +244,8 @@ class EnergyPeer(Simulator):
         objects, not both static), the contact MLP acts on every candidate pair and a mask keeps those closer than
         the contact radius (:func:`mdgs.graphs.dense_contacts`, the rule of :func:`mdgs.graphs.contact_edges`), so
         the step has no data-dependent shape and compiles as one graph; on the paper's scenes the pairs in contact
-        are most of the candidates (a test trajectory of the tiny Cubli: 692 of 1024 per frame on average). A larger scene takes the edge
-        list of the pairs in contact (:meth:`_contact_edge_list`)."""
+        are most of the candidates (a test trajectory of the tiny Cubli: 692 of 1024 per frame on average). A larger
+        scene takes the edge list of the pairs in contact (:meth:`_contact_edge_list`), eagerly."""
         c = self.config
         scene = b["scene"]
         k = self.node_properties(b)

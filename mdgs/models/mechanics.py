@@ -155,8 +155,8 @@ class ExternalForces(nn.Module):
         """Node forces [B, N, 3] from normalised velocities ``vn``, positions ``xn`` [B, N, 3], properties ``k``
         [N, d_k], actuation features ``act`` [B, N, 3] and the contact ``edges`` [2, E] over the batched node index
         ``b N + i`` (both directions, sorted by source then target). With ``mask`` [E] bool the edges are
-        candidates of a fixed number and only those it marks act (the others' forces are zero): the same forces as
-        the edge list of the marked ones, with no data-dependent shape (a step that compiles as one graph)."""
+        candidates of a fixed number and only those it marks act (the others' forces are zero): the forces of the
+        edge list of the marked ones to round-off, with no data-dependent shape (a step that compiles as one graph)."""
         B, N, _ = x.shape
         kk = k.expand(B, N, -1)
         f = self.f_scale * self.node(torch.cat([vn, xn, kk, act], -1))
@@ -641,8 +641,9 @@ def _select(bld: _Builder, n_rigid: int, static: np.ndarray, act: list) -> tuple
 # --- solvers -----------------------------------------------------------------------------------------
 
 #: Relative ridge (of the mean absolute diagonal) with which a system whose LU factorisation meets an exactly zero pivot
-#: is solved again (:func:`_solve`): its solution is then within about this relative distance of the pseudo-inverse's
-#: minimum-norm solution (a symmetric positive semi-definite system with a consistent right-hand side).
+#: is solved again (:func:`_solve`). For a symmetric positive semi-definite system with a consistent right-hand side the
+#: solution then differs from the pseudo-inverse's minimum-norm one by about the ridge over the smallest non-zero
+#: eigenvalue, relative (5e-9 for two copies of one constraint, tests/test_model_lgns.py).
 SINGULAR_RIDGE = 1e-8
 
 
@@ -665,8 +666,8 @@ def solve_multipliers(Minv_JT: torch.Tensor, J: torch.Tensor, rhs: torch.Tensor,
     """``lambda`` of ``(J M^-1 J^T) lambda = rhs`` ([B, m]); a relative ``eps`` ridge keeps it solvable
     where the constraints become dependent (a damped pseudo-inverse). Where the factorisation still
     meets an exactly zero pivot (seen on a GPU at batch 256 and 4096 with the CPU's states solving
-    fine; why is not established), that sample is solved again with a larger ridge (:func:`_solve`): the
-    minimum-norm multipliers to about :data:`SINGULAR_RIDGE`, relative."""
+    fine; why is not established), that sample is solved again with a larger ridge (:func:`_solve`), which gives
+    close to the minimum-norm multipliers (:data:`SINGULAR_RIDGE`)."""
     A = J @ Minv_JT
     if A.shape[-1] == 0:
         return rhs
