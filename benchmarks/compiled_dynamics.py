@@ -26,7 +26,8 @@ its tree has no push-out, so only with soft contact or one step a frame).
 
 ``--loops vector scalar`` measures each compiled row with the step's loops written both ways for the CPU
 (:data:`mdgs.models.base.LOOPS`; default ``model``: as the model chooses, :attr:`~mdgs.models.Simulator.scalar_loops`),
-and ``--models plain`` adds MDGS alone (no prior, the registry's defaults), whose step is its network's.
+and ``--models plain`` adds MDGS alone (no prior, the registry's defaults), whose step is its network's;
+``--models twist`` the constant-twist references without the tree's dynamics (plain, + joints, + motors + joints).
 
 ``--device cuda`` measures on the GPU instead, where ``--modes none cudagraphs`` compares the eager step with
 the step replayed as a CUDA graph (:func:`mdgs.models.compile_step`); ``--models tree`` or ``mdgs`` measures one
@@ -57,7 +58,7 @@ def main() -> None:
     ap.add_argument("--device", default="cpu", help="cpu, or cuda")
     ap.add_argument("--modes", nargs="*", default=["none", "inductor"], choices=("none", "inductor", "aot", "cudagraphs"),
                     help="how the step runs: none (eager), inductor (torch.compile), aot (AOTInductor), cudagraphs (CUDA only)")
-    ap.add_argument("--models", nargs="*", default=["tree", "mdgs"], choices=("tree", "mdgs", "gns", "plain"))
+    ap.add_argument("--models", nargs="*", default=["tree", "mdgs"], choices=("tree", "mdgs", "gns", "plain", "twist"))
     ap.add_argument("--loops", nargs="*", default=["model"], choices=("model", *LOOPS),
                     help="how compiled steps write their loops for the CPU (model: as the model chooses)")
     ap.add_argument("--joint-velocities", default="parent", choices=JOINT_VELOCITIES,
@@ -92,6 +93,10 @@ def main() -> None:
             if k in args.models]
     if "plain" in args.models:
         builds.append(("plain", "mdgs alone (no prior)", lambda: md.from_data(tr, md.Config())))
+    if "twist" in args.models:  # the references without the tree's dynamics: a body's twist, motors, joints
+        builds += [("twist", label, lambda kw=kw: ct.from_data(te, ct.Config(**kw))) for label, kw in (
+            ("constant twist", {}), ("constant twist + joints", {"joints": True}),
+            ("constant twist + motors + joints", {"motors": True, "joints": True}))]
     where = "CPU, 1 torch thread" if dev.type == "cpu" else f"{torch.cuda.get_device_name(dev)}, torch {torch.__version__}"
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, {where}")
     print(f"{'model':52s}{'step':>10s}{'loops':>8s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>13s}{'compile s':>11s}{'max |dx| m':>12s}")

@@ -170,9 +170,9 @@ def test_only_a_single_trajectorys_step_with_one_rotation_fit_is_exported_with_j
 
 def test_steps_that_run_the_rigid_tree_compile_with_scalar_loops_unless_told_otherwise(test_split, monkeypatch):
     """Ahead of time, a step that runs the rigid tree's forward dynamics (MDGS's "dynamics" prior, constant twist
-    with ``dynamics``) is compiled with a vector width of one bit (scalar loops), a step without it with inductor's
-    vectors; ``loops`` overrides the model's choice and an unknown way is refused by name. Compiling itself is
-    stood in for."""
+    with ``dynamics``) or constant twist's few bodies' 3-vectors is compiled with a vector width of one bit (scalar
+    loops), a network's step (MDGS without the prior) with inductor's vectors; ``loops`` overrides the model's choice
+    and an unknown way is refused by name. Compiling itself is stood in for."""
     from mdgs.models import compile_step
 
     options = []
@@ -184,7 +184,7 @@ def test_steps_that_run_the_rigid_tree_compile_with_scalar_loops_unless_told_oth
     monkeypatch.setattr(torch._inductor, "aoti_compile_and_package", stop)
     md, ct = MODELS["mdgs"], MODELS["constant-twist"]
     cases = [(md.from_data(test_split), None, False), (md.from_data(test_split, md.Config(actuation="dynamics")), None, True),
-             (ct.from_data(test_split), None, False), (ct.from_data(test_split, ct.Config(dynamics=True)), None, True),
+             (ct.from_data(test_split), None, True), (ct.from_data(test_split, ct.Config(dynamics=True)), None, True),
              (md.from_data(test_split, md.Config(actuation="dynamics")), "vector", False),
              (md.from_data(test_split), "scalar", True)]
     for model, loops, scalar in cases:
