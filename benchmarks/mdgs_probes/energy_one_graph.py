@@ -14,7 +14,9 @@ one torch thread):
 - with ``--compile``, ``compiled``: ``after`` with the step compiled by ``torch.compile``
   (:func:`mdgs.models.compile_step` ``"inductor"``).
 
-Printed per cell: the largest position difference over all trajectories and frames of ``after`` against ``before``
+Printed per cell: the scene's contact candidate pairs (what the masked path evaluates per trajectory and
+acceleration) and the pairs in contact per recorded test frame on average (what the edge list held); the largest
+position difference over all trajectories and frames of ``after`` against ``before``
 (and of ``compiled`` against ``after``), in metres, and the trajectories that diverged each way (a diverged frame
 holds the recorded one in :class:`~mdgs.evaluate.rollout.Rollout`, so a different divergence frame shows as a large
 difference).
@@ -34,6 +36,7 @@ import mdgs.models.mechanics as mech
 from mdgs.data.split import load_split
 from mdgs.evaluate.cost import quiet_compiler
 from mdgs.evaluate.rollout import rollout
+from mdgs.graphs import contact_edges
 from mdgs.models import compile_step
 from mdgs.runs import load_model
 
@@ -80,7 +83,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(1)
     runs = sorted(p for p in (args.study_dir / "runs").glob("*") if (p / "checkpoint.pt").exists())
-    print(f"{'cell':32s}{'max |dx| after-before m':>25s}{'diverged before/after':>23s}"
+    print(f"{'cell':32s}{'candidates':>11s}{'in contact':>11s}{'max |dx| after-before m':>25s}{'diverged before/after':>23s}"
           + (f"{'max |dx| compiled-after m':>27s}{'diverged compiled':>19s}" if args.compile else ""))
     for run in runs:
         cfg = json.loads((run / "config.json").read_text())
@@ -90,8 +93,13 @@ def main() -> None:
         d = load_split(Path(cfg["data"]) / "test.h5")
         with before():
             old = rollout(load_model(state, "cpu"), d)
-        new = rollout(load_model(state, "cpu"), d)
-        line = (f"{cfg['model_name'] + ' ' + Path(cfg['data']).name:32s}{float(np.abs(new.x - old.x).max()):25.2e}"
+        model = load_model(state, "cpu")
+        new = rollout(model, d)
+        b = model.bound(torch.device("cpu"))
+        scene, x = b["scene"], torch.from_numpy(d.x.reshape(-1, *d.x.shape[2:])).double()
+        touching = contact_edges(x, scene.obj, scene.contact_radius, scene.static).shape[1] / len(x)
+        line = (f"{cfg['model_name'] + ' ' + Path(cfg['data']).name:32s}{b['pairs'].shape[1]:11d}{touching:11.0f}"
+                f"{float(np.abs(new.x - old.x).max()):25.2e}"
                 f"{f'{int((old.diverged_at >= 0).sum())}/{int((new.diverged_at >= 0).sum())} of {len(d.x)}':>23s}")
         if args.compile:
             with quiet_compiler():

@@ -134,7 +134,8 @@ class Simulator(nn.Module):
         True where the step runs the rigid tree's forward dynamics (:func:`mdgs.tree.tree_step`,
         :func:`mdgs.actuation.coupled_motor_accelerations`): thousands of operations on 3-vectors, rotations and
         systems of the tree's size, loops shorter than one vector of 16 lanes, each of which pays for its masked
-        remainder when vectorised; and for constant twist's step, the same kind of loops over a few bodies. A network's loops span its hidden width and keep their vectors
+        remainder when vectorised; and for constant twist's step, the same kind of loops over a few bodies. A
+        network's loops span its hidden width and keep their vectors
         (``benchmarks/compiled_dynamics.py --loops vector scalar`` measures both). False unless a model says
         otherwise."""
         return False

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from mdgs.data.split import SplitData
-from mdgs.graphs import SceneGraph, batch_edges, contact_candidates, contact_edges, dense_contacts
+from mdgs.graphs import SceneGraph, batch_edges, contact_edges, dense_contacts
 from mdgs.models.base import Batch, ModelError, Simulator
 from mdgs.models.mechanics import (
     EdgePotential,
@@ -48,7 +48,8 @@ N_PROPERTIES = 6
 #: Scenes with at most this many contact candidate pairs (ordered node pairs of different objects, not both
 #: static) evaluate the contact force on every candidate, masked (:meth:`EnergyPeer.external_forces`): a fixed
 #: shape, so the step compiles as one graph. The bound keeps the masked pairs' work and memory small (at batch 256,
-#: 4096 pairs hold 1M rows of contact features); the paper's scenes have 858-1024.
+#: 4096 pairs hold 1M rows of contact features); the small study's scenes have 252-1024
+#: (docs/results/mdgs-probes/energy_one_graph.txt).
 DENSE_CONTACT_MAX_PAIRS = 4096
 
 
@@ -176,7 +177,7 @@ class EnergyPeer(Simulator):
         self._host = {"scene": scene, "cs": cs, "xref": torch.from_numpy(info["xref"]),
                       "mov": torch.from_numpy(np.where(~st)[0]), "static": torch.from_numpy(st),
                       "edges": torch.as_tensor(edges, dtype=torch.long).reshape(-1, 2),
-                      "pairs": torch.stack(torch.nonzero(contact_candidates(scene.obj, scene.static), as_tuple=True)),
+                      "pairs": torch.stack(torch.nonzero(scene.contact_candidates("cpu"), as_tuple=True)),
                       "sign": torch.from_numpy(np.asarray(split.control_sign, np.float64))}
         self._bound = {}
 
@@ -243,9 +244,10 @@ class EnergyPeer(Simulator):
         Contact: where the scene has at most :data:`DENSE_CONTACT_MAX_PAIRS` candidate pairs (nodes of different
         objects, not both static), the contact MLP acts on every candidate pair and a mask keeps those closer than
         the contact radius (:func:`mdgs.graphs.dense_contacts`, the rule of :func:`mdgs.graphs.contact_edges`), so
-        the step has no data-dependent shape and compiles as one graph; on the paper's scenes the pairs in contact
-        are most of the candidates (a test trajectory of the tiny Cubli: 692 of 1024 per frame on average). A larger
-        scene takes the edge list of the pairs in contact (:meth:`_contact_edge_list`), eagerly."""
+        the step has no data-dependent shape and compiles as one graph; on the paper's scenes most candidates are in
+        contact (small Cubli test frames: 733 of 1024 on average, rotational-center 480 of 858), on the small study's
+        user scene few (10 of 252; docs/results/mdgs-probes/energy_one_graph.txt). A larger scene takes the edge list
+        of the pairs in contact (:meth:`_contact_edge_list`), eagerly."""
         c = self.config
         scene = b["scene"]
         k = self.node_properties(b)
