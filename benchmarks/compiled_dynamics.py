@@ -29,6 +29,9 @@ its tree has no push-out, so only with soft contact or one step a frame).
 and ``--models plain`` adds MDGS alone (no prior, the registry's defaults), whose step is its network's;
 ``--models twist`` the constant-twist references without the tree's dynamics (plain, + joints, + motors + joints).
 
+``--stack on off`` measures each ahead-of-time row with its buffers allowed on the stack and without
+(:data:`mdgs.models.base.AOT_STACK_ALLOCATION`; default ``on``, as :func:`mdgs.models.compile_step` compiles).
+
 ``--device cuda`` measures on the GPU instead, where ``--modes none cudagraphs`` compares the eager step with
 the step replayed as a CUDA graph (:func:`mdgs.models.compile_step`); ``--models tree`` or ``mdgs`` measures one
 of the two; ``--batch 1`` times (and compiles) one trajectory only.
@@ -45,7 +48,7 @@ from bench_models import tiny_splits
 
 from mdgs.evaluate.cost import compiled_cost
 from mdgs.evaluate.rollout import rollout
-from mdgs.models import MODELS
+from mdgs.models import MODELS, base
 from mdgs.models.base import LOOPS
 from mdgs.tree import JOINT_VELOCITIES
 
@@ -65,6 +68,8 @@ def main() -> None:
                     help="with --substeps N > 1: how the tree keeps its joints (coordinates: stepped in them, Verlet)")
     ap.add_argument("--contact", nargs="*", default=["rigid"], choices=("rigid", "soft"),
                     help="with --substeps N > 1: the contact models to measure in turn (soft: without push-out)")
+    ap.add_argument("--stack", nargs="*", default=["on"], choices=("on", "off"),
+                    help="aot rows: intermediate buffers allowed on the stack (on) or not (off)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     dev = torch.device(args.device)
@@ -99,22 +104,26 @@ def main() -> None:
             ("constant twist + motors + joints", {"motors": True, "joints": True}))]
     where = "CPU, 1 torch thread" if dev.type == "cpu" else f"{torch.cuda.get_device_name(dev)}, torch {torch.__version__}"
     print(f"scene {args.scene}: {tr.x.shape[2]} nodes, {where}")
-    print(f"{'model':52s}{'step':>10s}{'loops':>8s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>13s}{'compile s':>11s}{'max |dx| m':>12s}")
+    print(f"{'model':52s}{'step':>10s}{'loops':>8s}{'stack':>7s}{'ms/f b1':>10s}{f'ms/tf b{args.batch}':>13s}{'compile s':>11s}{'max |dx| m':>12s}")
     one = dataclasses.replace(te, **{k: getattr(te, k)[:1] for k in ("x", "v", "ctrl", "qpos", "qvel", "act")
                                      if getattr(te, k) is not None})  # the first test trajectory
     for _, label, build in builds:
-        for mode, loops in [(m, lp) for m in args.modes for lp in (args.loops if m in ("inductor", "aot") else ["model"])]:
+        runs = [(m, lp, st) for m in args.modes for lp in (args.loops if m in ("inductor", "aot") else ["model"])
+                for st in (args.stack if m == "aot" else ["-"])]
+        for mode, loops, stack in runs:
+            base.AOT_STACK_ALLOCATION = stack != "off"
             model = build().to(dev)
             eager = rollout(model, one, dev).x
             r = compiled_cost(model, te, mode, batched=args.batch, loops=None if loops == "model" else loops)
             dx = float(np.abs(rollout(model, one, dev).x - eager).max())  # the step as timed, one trajectory
             way = "-" if r["compiled"] not in ("inductor", "aot") or dev.type != "cpu" else (
                 loops if loops != "model" else ("scalar" if model.scalar_loops else "vector"))
-            print(f"{label:52s}{r['compiled']:>10s}{way:>8s}{r['single']['ms_per_frame']:>10.3f}"
+            print(f"{label:52s}{r['compiled']:>10s}{way:>8s}{stack if r['compiled'] == 'aot' else '-':>7s}{r['single']['ms_per_frame']:>10.3f}"
                   f"{r['batched']['ms_per_trajectory_frame']:>13.3f}{r['compile_seconds']:>11.0f}{dx:>12.2g}"
                   + (f"  ({r['note']})" if r["note"] else ""), flush=True)
     print("step: none = eager, inductor = torch.compile, aot = AOTInductor, cudagraphs = replayed as a CUDA graph; loops: how "
-          "the compiled step's loops are written for the CPU (vector or scalar; - for the eager step); ms/f b1: ms per frame, one "
+          "the compiled step's loops are written for the CPU (vector or scalar; - for the eager step); stack: an aot step's "
+          "buffers allowed on the stack (on) or not (off); ms/f b1: ms per frame, one "
           "trajectory; ms/tf bN: ms per trajectory-frame at batch N; max |dx|: the largest difference of the rollout of "
           "the first test trajectory with the step as timed from the eager one (float32 positions)")
 

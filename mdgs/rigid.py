@@ -57,6 +57,10 @@ def rotation_matrix(phi: torch.Tensor) -> torch.Tensor:
     ``t = |phi|``; below ``t = 1e-4`` the Taylor series ``a = 1 - t^2/6``, ``b = 1/2 - t^2/24``
     (error under t^4/120 ~ 1e-18). Equal to ``torch.linalg.matrix_exp`` to float64 round-off, at a
     fraction of its cost, with finite gradients at ``phi = 0`` (tests/test_rigid.py).
+
+    ``K^2`` is written as ``phi phi^T - t^2 I`` (the square of a skew matrix), elementwise: a compiled step then
+    has no matrix-product library call here, and with none at all its buffers can live on the stack
+    (:func:`mdgs.models.compile_step`, ``"aot"``).
     """
     K = _skew_mat(phi)
     t2 = (phi * phi).sum(-1)
@@ -65,7 +69,8 @@ def rotation_matrix(phi: torch.Tensor) -> torch.Tensor:
     a = torch.where(small, 1 - t2 / 6, torch.sin(ts) / ts)
     b = torch.where(small, 0.5 - t2 / 24, (1 - torch.cos(ts)) / (ts * ts))
     eye = torch.eye(3, dtype=phi.dtype, device=phi.device)
-    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    K2 = phi.unsqueeze(-1) * phi.unsqueeze(-2) - t2[..., None, None] * eye
+    return eye + a[..., None, None] * K + b[..., None, None] * K2
 
 
 def _solve(J: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

@@ -134,8 +134,41 @@ def test_ahead_of_time_compiled_mdgs_rolls_out_as_the_eager_step_and_reuses_its_
     again = rollout(model, test_split, "cpu")  # bound again to the same scene: its package, the same numbers
     np.testing.assert_array_equal(again.x, aot.x)
     assert len(list(Path(model._aot_dir.name).iterdir())) == 1
+    assert _heap_allocations(model) > 0  # a step with weights keeps its buffers on the heap
     with pytest.raises(ValueError, match="'jit' is not one of inductor, aot"):
         compile_step(model, "jit")
+
+
+def _heap_allocations(model) -> int:
+    """How often the C++ wrappers of ``model``'s ahead-of-time packages allocate a tensor on the heap."""
+    import zipfile
+
+    count = 0
+    for package in Path(model._aot_dir.name).iterdir():
+        with zipfile.ZipFile(package) as z:
+            count += sum(z.read(n).decode().count("aoti_torch_empty_strided(")
+                         for n in z.namelist() if n.endswith(".wrapper.cpp"))
+    return count
+
+
+def test_an_ahead_of_time_step_without_weights_keeps_its_buffers_on_the_stack(test_split):
+    """Constant twist compiled ahead of time (no weights: :func:`mdgs.models.base._stack_allocation`) rolls out every
+    test trajectory as its eager step does, its package's C++ wrapper allocates nothing on the heap (every buffer on
+    the stack), and inductor's CPU wrapper registered before compiling is registered again after it."""
+    from torch._inductor.codegen import common
+
+    from mdgs.models import compile_step
+
+    cls = MODELS["constant-twist"]
+    model = cls.from_data(test_split, cls.Config())
+    eager = rollout(model, test_split, "cpu")
+    common.init_backend_registration()
+    registered = common.device_codegens["cpu"]
+    compile_step(model, "aot")
+    aot = rollout(model, test_split, "cpu")
+    np.testing.assert_allclose(aot.x, eager.x, rtol=0, atol=1e-5)  # float32 fusion may reorder rounding
+    assert _heap_allocations(model) == 0
+    assert common.device_codegens["cpu"] is registered
 
 
 def test_only_a_single_trajectorys_step_with_one_rotation_fit_is_exported_with_jacobi_rotations(test_split, monkeypatch):

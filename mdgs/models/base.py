@@ -250,6 +250,11 @@ JACOBI_MAX_FITS = 1
 #: of one bit, which no instruction set has, so inductor writes scalar loops).
 LOOPS = ("vector", "scalar")
 
+#: Whether an ahead-of-time step without weights may keep its intermediate buffers on the stack
+#: (:func:`_stack_allocation`); False compiles every package on the heap, for a side-by-side measurement
+#: (benchmarks/compiled_dynamics.py ``--stack``).
+AOT_STACK_ALLOCATION = True
+
 
 @torch.no_grad()
 def compile_step(model: Simulator, mode: str = "inductor", loops: str | None = None) -> Simulator:
@@ -278,7 +283,9 @@ def compile_step(model: Simulator, mode: str = "inductor", loops: str | None = N
     (:data:`JACOBI_MAX_FITS`) uses Jacobi rotations instead of the SVD (:func:`mdgs.structure.rotation_fit`),
     so rollouts differ from the eager
     ones by float32 round-off and what a rollout makes of it (MDGS on the tiny Cubli, every test
-    trajectory: 0-4.3e-6 m in three runs, benchmarks/bench_models.py ``--compile aot``).
+    trajectory: 0-4.3e-6 m in three runs, benchmarks/bench_models.py ``--compile aot``). A step without weights (the
+    constant-twist references) keeps its intermediate buffers on the stack where inductor can
+    (:func:`_stack_allocation`): the constant twist's step for one trajectory then costs half as much.
 
     ``mode="cudagraphs"`` (CUDA only; ``torch.compile`` with ``mode="reduce-overhead"``): inductor's
     kernels recorded once per batch shape into a CUDA graph and replayed, so a step costs one graph
@@ -337,6 +344,7 @@ def compile_step(model: Simulator, mode: str = "inductor", loops: str | None = N
     warm: set = set()
     packages: dict = {}
     scenes: dict = {}
+    ready: dict = {}  # key -> the package an ahead-of-time step calls: one lookup a step once compiled
 
     def step(state: State, ctrl: torch.Tensor) -> State:
         # the first step of each binding and batch shape runs eagerly: it fills the scene's caches
@@ -344,18 +352,24 @@ def compile_step(model: Simulator, mode: str = "inductor", loops: str | None = N
         # instead of building them in graph breaks
         key = (model._binds, state.x.shape, state.x.dtype, state.x.device,
                tuple(sorted(state.extra)) if state.extra else ())
-        if key not in warm:
-            warm.add(key)
-            return eager(state, ctrl)
-        if compiled is not None:
-            return compiled(state, ctrl)
-        if model._binds not in scenes:  # rebinding the same scene (every rollout does) reuses its packages
-            scenes[model._binds] = _scene_fingerprint(model._split)
-        pkey = (scenes[model._binds], *key[1:])
-        if pkey not in packages:
-            packages[pkey] = _aot_step(model, eager, state, ctrl, loop_options)
+        run = ready.get(key)
+        if run is None:
+            if key not in warm:
+                warm.add(key)
+                return eager(state, ctrl)
+            if compiled is not None:
+                return compiled(state, ctrl)
+            if model._binds not in scenes:  # rebinding the same scene (every rollout does) reuses its packages
+                scenes[model._binds] = _scene_fingerprint(model._split)
+            pkey = (scenes[model._binds], *key[1:])
+            if pkey not in packages:
+                packages[pkey] = _aot_step(model, eager, state, ctrl, loop_options)
+            run = ready[key] = packages[pkey]
         names = key[-1]
-        out = packages[pkey](state.x, state.v, ctrl, *(state.extra[k] for k in names))
+        if not names:
+            x, v = run([state.x, state.v, ctrl])
+            return State(x, v)
+        out = run([state.x, state.v, ctrl, *(state.extra[k] for k in names)])
         return State(out[0], out[1], dict(zip(names, out[2:], strict=True)))
 
     model.step = step
@@ -393,10 +407,45 @@ def _scalar_isa_accepted():
         log.removeFilter(keep)
 
 
+@contextlib.contextmanager
+def _stack_allocation(weights: bool):
+    """Within this block, AOTInductor may keep the intermediate buffers of a CPU step without weights on the stack;
+    yields the inductor options that say so (none for a step with ``weights``, or with :data:`AOT_STACK_ALLOCATION`
+    false).
+
+    Inductor's option ``aot_inductor.allow_stack_allocation`` takes effect only through the wrapper class that
+    inductor registers for the CPU once per process, chosen by the option's value at that moment; the block
+    registers the stack-allocating wrapper for its duration and restores the registered one after it. Inductor
+    itself keeps every buffer on the heap where a graph calls a library kernel (a matrix product, a solve) or its
+    buffers exceed 100 kB in all, so it changes only small steps of fused loops: the constant-twist reference's
+    (twenty allocations of a few bytes each, half of its step's cost before; benchmarks/compiled_dynamics.py
+    ``--stack``). That wrapper crashed a package of MDGS's step (a segmentation fault at its first call, torch
+    2.13) that folds products of weights when it loads (``aot_inductor.use_runtime_constant_folding``), so a step
+    with weights (a learned model's) is compiled as before, and one without folds its constants when it compiles.
+    Where this torch lays its registry out otherwise, the block changes nothing."""
+    if weights or not AOT_STACK_ALLOCATION:
+        yield {}
+        return
+    try:
+        from torch._inductor.codegen import common
+        from torch._inductor.codegen.cpp_wrapper_cpu_array_ref import CppWrapperCpuArrayRef
+
+        common.init_backend_registration()
+        registered = common.device_codegens["cpu"]
+        common.device_codegens["cpu"] = replace(registered, cpp_wrapper_codegen=CppWrapperCpuArrayRef)
+    except (ImportError, AttributeError, KeyError, TypeError):
+        yield {}
+        return
+    try:
+        yield {"aot_inductor.allow_stack_allocation": True, "aot_inductor.use_runtime_constant_folding": False}
+    finally:
+        common.device_codegens["cpu"] = registered
+
+
 def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor, loop_options: dict):
     """The eager step for ``state``'s batch shape exported and compiled by AOTInductor, loaded: a
-    callable ``(x, v, ctrl, *extra) -> (x', v', *extra')``. The package lives in a temporary folder
-    removed with the model."""
+    callable ``[x, v, ctrl, *extra] -> [x', v', *extra']`` (one list in, one out). The package lives in a temporary
+    folder removed with the model."""
     import tempfile
 
     names = sorted(state.extra)
@@ -428,7 +477,9 @@ def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor, loop_op
                 program = program if fits.calls <= JACOBI_MAX_FITS else None
             if program is None:
                 program = torch.export.export(Step(), args, strict=False)
-            torch._inductor.aoti_compile_and_package(program, package_path=path, inductor_configs=options)
+            with _stack_allocation(weights=any(True for _ in model.parameters())) as stack:
+                torch._inductor.aoti_compile_and_package(program, package_path=path,
+                                                         inductor_configs={**options, **stack})
     except Exception as e:  # noqa: BLE001 - torch.export's and inductor's many failure types
         raise ModelError(f"the step of {model.name!r} does not compile ahead of time ({type(e).__name__}: "
                          f"{str(e).splitlines()[0][:120]}); use compile mode 'inductor'") from e
@@ -441,8 +492,8 @@ def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor, loop_op
     first, direct = package(*args), run(list(args))
     if not (isinstance(first, tuple) and len(first) == len(direct)
             and all(torch.equal(a, b) for a, b in zip(first, direct, strict=True))):
-        return package
-    return lambda *a: run(list(a))
+        return lambda a: list(package(*a))
+    return run
 
 
 def one_step_error(model: Simulator, d: SplitData, dev, batch_size: int = 64, max_pairs: int = 0) -> float:
