@@ -11,7 +11,8 @@ joints and bodies in :mod:`mdgs.tree` and :mod:`mdgs.joints`).
 rigid tree's prior with soft contact in 8 substeps, whose steps rotate bodies in every substep). For every cell of
 ``--seed`` and, per scene, the non-learned references (constant twist; + joints; + motors + joints; the rigid tree
 with its joints, trapezoidal), every test trajectory of the scene is rolled out eagerly both ways
-(:func:`mdgs.evaluate.rollout.rollout`, one torch thread). Printed per row: the largest position difference over all
+(:func:`mdgs.evaluate.rollout.rollout`, one torch thread). Printed first: how far the two forms' matrices lie apart
+for random rotation vectors (float64 round-off: a rollout stores float32 positions every frame). Then per row: the largest position difference over all
 trajectories and frames (m, float32 positions) and the trajectories that diverged each way (a diverged frame holds
 the recorded one in :class:`~mdgs.evaluate.rollout.Rollout`, so a different divergence frame shows as a large
 difference).
@@ -80,6 +81,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     torch.set_num_threads(1)
+    phi = torch.randn(100_000, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    phi = phi * (torch.rand(100_000, 1, dtype=torch.float64, generator=torch.Generator().manual_seed(1)) * 3.2
+                 / phi.norm(dim=-1, keepdim=True))  # angles uniform in [0, 3.2) rad
+    gap = float((mdgs.rigid.rotation_matrix(phi) - rotation_matrix_before(phi)).abs().max())
+    print(f"rotation matrices of 100000 random rotation vectors (angles up to 3.2 rad), float64: "
+          f"max |R_after - R_before| = {gap:.2e}")
     runs = sorted(p for p in (args.study_dir / "runs").glob("*") if (p / "checkpoint.pt").exists())
     print(f"{'row':56s}{'max |dx| after-before':>22s}{'diverged before/after':>23s}")
     scenes = {}

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import re
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, ClassVar
@@ -250,9 +251,9 @@ JACOBI_MAX_FITS = 1
 #: of one bit, which no instruction set has, so inductor writes scalar loops).
 LOOPS = ("vector", "scalar")
 
-#: Whether an ahead-of-time step without weights may keep its intermediate buffers on the stack
-#: (:func:`_stack_allocation`); False compiles every package on the heap, for a side-by-side measurement
-#: (benchmarks/compiled_dynamics.py ``--stack``).
+#: Whether an ahead-of-time step of fused loops alone (no library call) is compiled again with its intermediate
+#: buffers on the stack (:func:`_stack_allocation`); False keeps every package's buffers on the heap, for a
+#: side-by-side measurement (benchmarks/compiled_dynamics.py ``--stack``).
 AOT_STACK_ALLOCATION = True
 
 
@@ -283,9 +284,9 @@ def compile_step(model: Simulator, mode: str = "inductor", loops: str | None = N
     (:data:`JACOBI_MAX_FITS`) uses Jacobi rotations instead of the SVD (:func:`mdgs.structure.rotation_fit`),
     so rollouts differ from the eager
     ones by float32 round-off and what a rollout makes of it (MDGS on the tiny Cubli, every test
-    trajectory: 0-4.3e-6 m in three runs, benchmarks/bench_models.py ``--compile aot``). A step without weights (the
-    constant-twist references) keeps its intermediate buffers on the stack where inductor can
-    (:func:`_stack_allocation`): the constant twist's step for one trajectory then costs half as much.
+    trajectory: 0-4.3e-6 m in three runs, benchmarks/bench_models.py ``--compile aot``). A step whose package calls
+    no library kernel (constant twist's) is compiled a second time with its intermediate buffers on the stack
+    (:func:`_stack_allocation`): its step for one trajectory then costs half as much.
 
     ``mode="cudagraphs"`` (CUDA only; ``torch.compile`` with ``mode="reduce-overhead"``): inductor's
     kernels recorded once per batch shape into a CUDA graph and replayed, so a step costs one graph
@@ -407,23 +408,36 @@ def _scalar_isa_accepted():
         log.removeFilter(keep)
 
 
+_LIBRARY_CALL = re.compile(r"\baoti_torch_(cpu_\w+|proxy_executor_call_function|call_dispatcher)\(")
+
+
+def _calls_library(package: str) -> bool:
+    """Whether the C++ wrapper of the AOTInductor ``package`` calls a library kernel (a matrix product, a solve, an
+    op inductor does not generate): its ``aoti_torch_cpu_*`` shims, the proxy executor or the dispatcher. True where the
+    package holds no wrapper source to read."""
+    import zipfile
+
+    with zipfile.ZipFile(package) as z:
+        sources = [z.read(n).decode(errors="replace") for n in z.namelist() if n.endswith(".wrapper.cpp")]
+    return not sources or any(_LIBRARY_CALL.search(src) for src in sources)
+
+
 @contextlib.contextmanager
-def _stack_allocation(weights: bool):
-    """Within this block, AOTInductor may keep the intermediate buffers of a CPU step without weights on the stack;
-    yields the inductor options that say so (none for a step with ``weights``, or with :data:`AOT_STACK_ALLOCATION`
-    false).
+def _stack_allocation():
+    """Within this block, AOTInductor keeps a CPU step's intermediate buffers on the stack where it can; yields the
+    inductor options that say so (none where :data:`AOT_STACK_ALLOCATION` is false).
 
     Inductor's option ``aot_inductor.allow_stack_allocation`` takes effect only through the wrapper class that
     inductor registers for the CPU once per process, chosen by the option's value at that moment; the block
     registers the stack-allocating wrapper for its duration and restores the registered one after it. Inductor
-    itself keeps every buffer on the heap where a graph calls a library kernel (a matrix product, a solve) or its
-    buffers exceed 100 kB in all, so it changes only small steps of fused loops: the constant-twist reference's
-    (twenty allocations of a few bytes each, half of its step's cost before; benchmarks/compiled_dynamics.py
-    ``--stack``). That wrapper crashed a package of MDGS's step (a segmentation fault at its first call, torch
-    2.13) that folds products of weights when it loads (``aot_inductor.use_runtime_constant_folding``), so a step
-    with weights (a learned model's) is compiled as before, and one without folds its constants when it compiles.
-    Where this torch lays its registry out otherwise, the block changes nothing."""
-    if weights or not AOT_STACK_ALLOCATION:
+    keeps every buffer on the heap where a graph calls a library kernel (:func:`_calls_library`) or its buffers
+    exceed 100 kB in all, so :func:`_aot_step` compiles again in this block only a package of fused loops alone:
+    the constant-twist reference's (twenty allocations of a few bytes each, half of its step's cost before;
+    benchmarks/compiled_dynamics.py ``--stack``). Its constants are then folded when it compiles, not when it
+    loads: the stack-allocating wrapper crashed a package that folds, at load, products of weights through a
+    library call (MDGS's, a segmentation fault at its first call, torch 2.13). Where this torch lays its registry
+    out otherwise, the block yields no options."""
+    if not AOT_STACK_ALLOCATION:
         yield {}
         return
     try:
@@ -477,9 +491,12 @@ def _aot_step(model: Simulator, eager, state: State, ctrl: torch.Tensor, loop_op
                 program = program if fits.calls <= JACOBI_MAX_FITS else None
             if program is None:
                 program = torch.export.export(Step(), args, strict=False)
-            with _stack_allocation(weights=any(True for _ in model.parameters())) as stack:
-                torch._inductor.aoti_compile_and_package(program, package_path=path,
-                                                         inductor_configs={**options, **stack})
+            torch._inductor.aoti_compile_and_package(program, package_path=path, inductor_configs=options)
+            if AOT_STACK_ALLOCATION and not _calls_library(path):  # fused loops alone: again, buffers on the stack
+                with _stack_allocation() as stack:
+                    if stack:
+                        torch._inductor.aoti_compile_and_package(program, package_path=path,
+                                                                 inductor_configs={**options, **stack})
     except Exception as e:  # noqa: BLE001 - torch.export's and inductor's many failure types
         raise ModelError(f"the step of {model.name!r} does not compile ahead of time ({type(e).__name__}: "
                          f"{str(e).splitlines()[0][:120]}); use compile mode 'inductor'") from e
