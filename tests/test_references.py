@@ -134,7 +134,7 @@ def test_ahead_of_time_compiled_mdgs_rolls_out_as_the_eager_step_and_reuses_its_
     again = rollout(model, test_split, "cpu")  # bound again to the same scene: its package, the same numbers
     np.testing.assert_array_equal(again.x, aot.x)
     assert len(list(Path(model._aot_dir.name).iterdir())) == 1
-    assert _heap_allocations(model) > 0  # a step with weights keeps its buffers on the heap
+    assert _heap_allocations(model) > 0  # a step with library calls keeps its buffers on the heap
     with pytest.raises(ValueError, match="'jit' is not one of inductor, aot"):
         compile_step(model, "jit")
 
@@ -151,10 +151,11 @@ def _heap_allocations(model) -> int:
     return count
 
 
-def test_an_ahead_of_time_step_without_weights_keeps_its_buffers_on_the_stack(test_split):
-    """Constant twist compiled ahead of time (no weights: :func:`mdgs.models.base._stack_allocation`) rolls out every
-    test trajectory as its eager step does, its package's C++ wrapper allocates nothing on the heap (every buffer on
-    the stack), and inductor's CPU wrapper registered before compiling is registered again after it."""
+def test_an_ahead_of_time_step_of_fused_loops_alone_keeps_its_buffers_on_the_stack(test_split):
+    """Constant twist compiled ahead of time (its step calls no library kernel: :func:`mdgs.models.base._stack_allocation`)
+    rolls out every test trajectory as its eager step does, its package's C++ wrapper allocates nothing on the heap
+    (every buffer on the stack), and inductor's CPU wrapper registered before compiling is registered again after
+    it. MDGS's package, which calls matrix products, allocates on the heap (the test above)."""
     from torch._inductor.codegen import common
 
     from mdgs.models import compile_step
