@@ -425,7 +425,7 @@ def _calls_library(package: str) -> bool:
 @contextlib.contextmanager
 def _stack_allocation():
     """Within this block, AOTInductor keeps a CPU step's intermediate buffers on the stack where it can; yields the
-    inductor options that say so (none where :data:`AOT_STACK_ALLOCATION` is false).
+    inductor options that say so (:func:`_aot_step` enters it only with :data:`AOT_STACK_ALLOCATION` true).
 
     Inductor's option ``aot_inductor.allow_stack_allocation`` takes effect only through the wrapper class that
     inductor registers for the CPU once per process, chosen by the option's value at that moment; the block
@@ -437,9 +437,6 @@ def _stack_allocation():
     loads: the stack-allocating wrapper crashed a package that folds, at load, products of weights through a
     library call (MDGS's, a segmentation fault at its first call, torch 2.13). Where this torch lays its registry
     out otherwise, the block yields no options."""
-    if not AOT_STACK_ALLOCATION:
-        yield {}
-        return
     try:
         from torch._inductor.codegen import common
         from torch._inductor.codegen.cpp_wrapper_cpu_array_ref import CppWrapperCpuArrayRef
